@@ -1,0 +1,24 @@
+# Two commands do all the set-up on a fresh machine:
+#   make run    -> creates .venv, installs qmdf (CPU torch), runs the pipeline on the embedded teacup
+#   make test   -> the same set-up, then the test suite
+VENV ?= .venv
+PY := $(VENV)/bin/python
+ARGS ?=
+PYTEST_ARGS ?=
+
+.PHONY: setup run test plugins clean-runs
+
+setup:
+	@bash scripts/setup.sh
+
+run: setup
+	$(PY) -m qmdf $(ARGS)
+
+test: setup
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+plugins: setup
+	$(PY) -m qmdf.plugins
+
+clean-runs:
+	rm -rf runs/20* runs/multirun runs/.cache

@@ -1,0 +1,65 @@
+"""``python -m qmdf``: compose the config with Hydra, validate it, run the pipeline, report.
+
+    python -m qmdf                                  # the default pipeline on the embedded teacup
+    python -m qmdf +experiment=sparse_teacup        # an experiment overlay
+    python -m qmdf input.path=scan.ply              # your own mesh or point cloud
+    python -m qmdf -m sample.n_points=5000,20000    # a sweep (add hydra/launcher=joblib for parallel jobs)
+"""
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+
+from qmdf.rundir import ENV_VAR, conf_dir, new_run_name
+
+log = logging.getLogger("qmdf")
+
+
+def summary_line(result) -> str:
+    m = result.manifest
+    parts = [f"{s['name']} {s['status']} {s['seconds']:.2f}s" for s in m["stages"]]
+    line = f"qmdf {m['status']}: " + ", ".join(parts) + f" -> {result.run_dir}"
+    if m["unavailable_stages"]:
+        line += f" (not available in this version: {', '.join(m['unavailable_stages'])})"
+    return line
+
+
+def task(cfg) -> dict:
+    """One Hydra job: one run directory, one pipeline."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from qmdf.artifacts import write_json
+    from qmdf.errors import QmdfError
+    from qmdf.pipeline import Pipeline
+
+    hc = HydraConfig.get()
+    run_dir = Path(hc.runtime.output_dir)
+    try:
+        result = Pipeline(cfg, run_dir, base_dir=Path(hc.runtime.cwd)).run()
+    except QmdfError as exc:
+        if not (run_dir / "manifest.json").exists():  # the run never started: say so on disk too
+            write_json(run_dir / "manifest.json", {"status": "failed", "error": str(exc), "stages": []})
+        log.error("%s", exc)
+        sys.stderr.flush()
+        raise SystemExit(exc.exit_code) from None
+    line = summary_line(result)
+    log.info("%s", line)
+    print(line, flush=True)
+    return result.manifest
+
+
+def main() -> None:
+    import hydra
+
+    from qmdf.config import register_configs
+
+    # One fresh name per invocation: the run (or the sweep) directory. Jobs of a multirun share it.
+    os.environ[ENV_VAR] = new_run_name()
+    register_configs()
+    hydra.main(config_path=str(conf_dir()), config_name="config", version_base="1.3")(task)()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""Typed, file-backed artifacts: what stages exchange through the run directory.
+
+A stage declares the artifacts it reads and writes by name and kind; the pipeline checks that wiring before
+anything runs, and keys its cache by the artifacts' content.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from qmdf.geometry.normalize import Normalization
+from qmdf.geometry.pointset import PointSet
+
+
+def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """Write through a temporary sibling and rename, so a crash never leaves a complete-looking file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, data: Any) -> None:
+    write_atomic(path, lambda p: p.write_text(json.dumps(data, indent=2, default=_json_default) + "\n"))
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class ArtifactKind:
+    """How one kind of artifact is stored. ``save``/``load`` are None for files a stage writes itself."""
+
+    name: str
+    suffix: str
+    save: Callable[[Any, Path], None] | None = None
+    load: Callable[[Path], Any] | None = None
+
+
+def _save_points(value: PointSet, path: Path) -> None:
+    arrays = {"points": value.points}
+    if value.normals is not None:
+        arrays["normals"] = value.normals
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+
+
+def _load_points(path: Path) -> PointSet:
+    with np.load(path, allow_pickle=False) as data:
+        return PointSet(data["points"], data["normals"] if "normals" in data else None)
+
+
+def _save_mesh(value: Any, path: Path) -> None:
+    path.write_bytes(value.export(file_type="ply"))
+
+
+def _load_mesh(path: Path) -> Any:
+    import trimesh
+
+    return trimesh.load(path, file_type="ply", process=False)
+
+
+POINTS = ArtifactKind("points", ".npz", _save_points, _load_points)
+NORMALIZATION = ArtifactKind(
+    "normalization", ".json",
+    lambda v, p: p.write_text(json.dumps(v.to_dict(), indent=2) + "\n"),
+    lambda p: Normalization.from_dict(json.loads(p.read_text())),
+)
+MESH = ArtifactKind("mesh", ".ply", _save_mesh, _load_mesh)
+JSON = ArtifactKind(
+    "json", ".json",
+    lambda v, p: p.write_text(json.dumps(v, indent=2, default=_json_default) + "\n"),
+    lambda p: json.loads(p.read_text()),
+)
+#: A file the stage writes itself (a checkpoint, a .ma file): ``ctx.path(name)`` gives where.
+FILE = ArtifactKind("file", "")

@@ -1,0 +1,1 @@
+"""Plain geometry functions over numpy arrays: input io, normalisation, procedural shapes, topology."""

@@ -1,0 +1,295 @@
+"""Runs the configured list of stages over one run directory.
+
+Before anything runs, the plan is checked: every stage name is known, and every input a stage reads is made
+by an earlier stage (the latest producer of a name wins, so e.g. ``feature_retrain`` can re-make ``field``
+and later stages read the new one while the first result stays in its own folder).
+
+Each stage's result is cached by content: its key hashes the stage's name and version, its config section,
+the other config sections it depends on, and the content digests of its input artifacts. A re-run, or a
+multirun job that only changes a downstream stage, copies the upstream results from ``cache.dir`` instead of
+recomputing them. Parallel jobs computing the same key wait on a file lock rather than duplicate the work.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+from omegaconf import DictConfig, OmegaConf
+
+from qmdf import config as config_mod
+from qmdf import __version__
+from qmdf.artifacts import ArtifactKind, file_digest, write_json
+from qmdf.errors import PipelineError, QmdfError
+from qmdf.registry import STAGES
+from qmdf.stage import RunSettings, Stage, StageContext
+
+log = logging.getLogger("qmdf.pipeline")
+
+
+@dataclass
+class Step:
+    index: int
+    name: str
+    stage: Stage
+    cfg: Any
+
+    @property
+    def dirname(self) -> str:
+        return f"{self.index:02d}_{self.name}"
+
+
+@dataclass
+class Plan:
+    steps: list[Step]
+    unavailable: list[str]  # configured built-in stages that this version does not have
+    not_run: list[str]  # configured stages after the first unavailable one, or after stop_after
+
+
+def make_plan(cfg: DictConfig | dict) -> Plan:
+    names = list(cfg["pipeline"]["stages"])
+    stop_after = cfg["pipeline"].get("stop_after")
+    steps: list[Step] = []
+    unavailable = [n for n in names if n not in STAGES]
+    for i, name in enumerate(names):
+        if name not in STAGES:
+            break
+        entry = STAGES.get(name)
+        steps.append(Step(i, name, entry.obj(), config_mod.typed_section(cfg, name)))
+        if name == stop_after:
+            break
+    not_run = names[len(steps):]
+    check_wiring(steps)
+    return Plan(steps, unavailable, not_run)
+
+
+def check_wiring(steps: list[Step]) -> None:
+    """Raise PipelineError listing every input that no earlier stage makes, or makes with another kind."""
+    made: dict[str, tuple[ArtifactKind, str]] = {}
+    problems = []
+    for step in steps:
+        st = step.stage
+        for name, kind in st.inputs.items():
+            if name not in made:
+                makers = [e.name for e in STAGES.entries() if name in e.obj.outputs or name in e.obj.optional_outputs]
+                hint = f" (made by: {', '.join(makers)})" if makers else ""
+                problems.append(f"stage '{step.name}' (#{step.index}) reads '{name}', which no earlier stage makes{hint}")
+            elif made[name][0] is not kind:
+                problems.append(
+                    f"stage '{step.name}' reads '{name}' as {kind.name}, but '{made[name][1]}' makes it as {made[name][0].name}"
+                )
+        for name, kind in {**st.outputs, **st.optional_outputs}.items():
+            made[name] = (kind, step.name)
+    if problems:
+        raise PipelineError("the pipeline's wiring is broken:\n" + "\n".join(f"  - {p}" for p in problems))
+
+
+@dataclass
+class ArtifactRecord:
+    name: str
+    kind: str
+    path: Path  # absolute
+    digest: str
+    producer: str
+
+
+@dataclass
+class RunResult:
+    run_dir: Path
+    manifest: dict
+    artifacts: dict[str, ArtifactRecord] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return self.manifest["status"] == "complete"
+
+    def path(self, name: str) -> Path:
+        if name not in self.artifacts:
+            raise PipelineError(f"this run made no artifact '{name}' (it made: {', '.join(self.artifacts)})")
+        return self.artifacts[name].path
+
+    def load(self, name: str) -> Any:
+        rec = self.artifacts.get(name)
+        if rec is None:
+            self.path(name)
+        producer = STAGES.get(rec.producer).obj
+        kind = {**producer.outputs, **producer.optional_outputs}[name]
+        return kind.load(rec.path) if kind.load else rec.path
+
+
+def _stable_json(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def _section(cfg: DictConfig | dict, key: str) -> Any:
+    value = cfg.get(key)
+    return OmegaConf.to_container(value, resolve=True) if isinstance(value, DictConfig) else value
+
+
+class Pipeline:
+    def __init__(self, cfg: DictConfig, run_dir: Path, base_dir: Path):
+        config_mod.check(cfg)
+        self.cfg = cfg
+        self.run_dir = Path(run_dir).resolve()
+        self.base_dir = Path(base_dir).resolve()
+        root = config_mod.typed_root(cfg)
+        self.settings = RunSettings(root.seed, root.input, self.base_dir, self.run_dir)
+        self.cache = root.cache
+        cache_dir = Path(root.cache.dir).expanduser()
+        self.cache_dir = cache_dir if cache_dir.is_absolute() else self.base_dir / cache_dir
+        self.plan = make_plan(cfg)
+
+    # -- manifest ---------------------------------------------------------------------------
+    def _write_manifest(self, manifest: dict) -> None:
+        write_json(self.run_dir / "manifest.json", manifest)
+
+    # -- cache keys ------------------------------------------------------------------------
+    def stage_key(self, step: Step, inputs: dict[str, ArtifactRecord], ctx: StageContext) -> str:
+        st = step.stage
+        material = {
+            "stage": step.name,
+            "class": f"{type(st).__module__}.{type(st).__qualname__}",
+            "version": st.version,
+            "config": _section(self.cfg, step.name),
+            "deps": {k: _section(self.cfg, k) for k in st.config_deps},
+            "inputs": {k: v.digest for k, v in sorted(inputs.items())},
+            "fingerprint": st.fingerprint(ctx),
+        }
+        return hashlib.sha256(_stable_json(material).encode()).hexdigest()
+
+    def _forced(self, name: str) -> bool:
+        return "all" in self.cache.force or name in self.cache.force
+
+    # -- running -------------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(self.cfg, self.run_dir / "config.yaml", resolve=True)
+        plan = self.plan
+        manifest: dict[str, Any] = {
+            "qmdf_version": __version__,
+            "run_dir": str(self.run_dir),
+            "started": dt.datetime.now().isoformat(timespec="microseconds"),
+            "status": "running",
+            "pipeline": list(self.cfg["pipeline"]["stages"]),
+            "unavailable_stages": plan.unavailable,
+            "not_run": plan.not_run,
+            "stages": [],
+        }
+        if plan.unavailable:
+            log.warning(
+                "stages not available in qmdf %s: %s. Running only: %s",
+                __version__, ", ".join(plan.unavailable), ", ".join(s.name for s in plan.steps) or "nothing",
+            )
+        self._write_manifest(manifest)
+        result = RunResult(self.run_dir, manifest)
+        try:
+            for step in plan.steps:
+                record = self._run_step(step, result.artifacts)
+                manifest["stages"].append(record)
+                self._write_manifest(manifest)
+        except BaseException as exc:
+            manifest["status"] = "failed"
+            manifest["error"] = str(exc) if isinstance(exc, QmdfError) else f"{type(exc).__name__}: {exc}"
+            manifest["finished"] = dt.datetime.now().isoformat(timespec="microseconds")
+            self._write_manifest(manifest)
+            raise
+        manifest["status"] = "complete" if not plan.not_run else "partial"
+        manifest["finished"] = dt.datetime.now().isoformat(timespec="microseconds")
+        self._write_manifest(manifest)
+        return result
+
+    def _run_step(self, step: Step, produced: dict[str, ArtifactRecord]) -> dict:
+        st = step.stage
+        inputs: dict[str, ArtifactRecord] = {}
+        for name in list(st.inputs) + list(st.optional_inputs):
+            if name in produced:
+                inputs[name] = produced[name]
+            elif name in st.inputs:
+                raise PipelineError(f"stage '{step.name}' needs '{name}', but its producer did not write it this run")
+        final_dir = self.run_dir / step.dirname
+        if final_dir.exists():
+            shutil.rmtree(final_dir)
+        ctx = StageContext(
+            stage=st, cfg=step.cfg, settings=self.settings, stage_dir=final_dir,
+            input_paths={k: v.path for k, v in inputs.items()}, log=logging.getLogger(f"qmdf.stage.{step.name}"),
+        )
+        key = self.stage_key(step, inputs, ctx)
+        entry = self.cache_dir / step.name / key
+        t0 = time.perf_counter()
+        status = "ran"
+        use_cache = self.cache.enabled
+        with self._locked(entry) if use_cache else contextlib.nullcontext():
+            if use_cache and not self._forced(step.name) and (entry / "artifacts.json").exists():
+                shutil.copytree(entry, final_dir, ignore=shutil.ignore_patterns("artifacts.json"))
+                written = json.loads((entry / "artifacts.json").read_text())
+                status = "cached"
+                log.info("[%s] reused cached result %s", step.name, key[:12])
+            else:
+                log.info("[%s] running", step.name)
+                written = self._execute(step, ctx, final_dir)
+                if use_cache:
+                    self._store(entry, final_dir, written)
+        seconds = time.perf_counter() - t0
+        record = {
+            "index": step.index, "name": step.name, "status": status, "key": key,
+            "seconds": round(seconds, 3), "dir": step.dirname, "artifacts": {},
+        }
+        for name, rel in written.items():
+            path = final_dir / rel
+            kind = {**st.outputs, **st.optional_outputs}[name]
+            digest = file_digest(path)
+            produced[name] = ArtifactRecord(name, kind.name, path, digest, step.name)
+            record["artifacts"][name] = {
+                "path": f"{step.dirname}/{rel}", "kind": kind.name, "sha256": digest, "bytes": path.stat().st_size,
+            }
+        if status == "ran":
+            log.info("[%s] done in %.2f s", step.name, seconds)
+        return record
+
+    def _execute(self, step: Step, ctx: StageContext, final_dir: Path) -> dict[str, str]:
+        """Run the stage in a scratch folder and move it into place only when it finished and wrote its outputs."""
+        scratch = final_dir.with_name(f".{final_dir.name}.partial")
+        if scratch.exists():
+            shutil.rmtree(scratch)
+        scratch.mkdir(parents=True)
+        ctx.stage_dir = scratch
+        try:
+            step.stage.run(ctx)
+            missing = [n for n in step.stage.outputs if n not in ctx.written or not ctx.written[n].exists()]
+            if missing:
+                raise PipelineError(f"stage '{step.name}' finished without writing: {', '.join(missing)}")
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
+        os.replace(scratch, final_dir)
+        ctx.stage_dir = final_dir
+        return {name: path.name for name, path in ctx.written.items()}
+
+    def _store(self, entry: Path, stage_dir: Path, written: dict[str, str]) -> None:
+        tmp = entry.with_name(f".{entry.name}.tmp{os.getpid()}")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        shutil.copytree(stage_dir, tmp)
+        (tmp / "artifacts.json").write_text(json.dumps(written, indent=2))
+        if entry.exists():
+            shutil.rmtree(entry)  # a forced recomputation replaces the old entry
+        os.replace(tmp, entry)
+
+    @contextlib.contextmanager
+    def _locked(self, entry: Path) -> Iterator[None]:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        with open(entry.with_name(entry.name + ".lock"), "w") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)

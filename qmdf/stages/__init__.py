@@ -1,0 +1,1 @@
+"""The built-in stages, one module each. They stay thin: read artifacts, call geometry code, write artifacts."""
