@@ -1,0 +1,66 @@
+"""The Python API: the same pipeline and configs as the CLI."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import qmdf
+from qmdf.errors import ConfigError, InputError, PipelineError
+
+from conftest import FAST
+
+
+def overrides(tmp_path, *more):
+    return [f"cache.dir={tmp_path / 'cache'}", *FAST, *more]
+
+
+def test_run_on_an_array(tmp_path):
+    pts = np.random.default_rng(0).normal(size=(700, 3)) * [3, 2, 1] + 10
+    res = qmdf.run(pts, overrides(tmp_path, "pipeline.stages=[sample]"), run_dir=tmp_path / "r")
+    assert res.complete
+    unit = res.load("points").points
+    norm = res.load("normalization")
+    assert np.allclose(norm.to_input(unit), pts)
+    assert (tmp_path / "r" / "qmdf.log").read_text().count("[sample] running") == 1
+
+
+def test_run_on_a_trimesh_and_on_a_path(tmp_path):
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    res = qmdf.run(mesh, overrides(tmp_path, "pipeline.stages=[sample]"), run_dir=tmp_path / "a")
+    assert "surface" in res.artifacts and len(res.load("points")) == 2000
+    mesh.export(tmp_path / "s.off")
+    res = qmdf.run(tmp_path / "s.off", overrides(tmp_path, "pipeline.stages=[sample]"), run_dir=tmp_path / "b")
+    assert len(res.load("surface").faces) == len(mesh.faces)
+
+
+def test_errors_are_the_same_as_the_cli(tmp_path):
+    with pytest.raises(ConfigError, match="sample.n_points"):
+        qmdf.run(None, overrides(tmp_path, "sample.n_points=1"), run_dir=tmp_path / "c")
+    with pytest.raises(InputError, match="all points lie on a plane"):
+        qmdf.run(np.c_[np.random.rand(50, 2), np.zeros(50)], overrides(tmp_path), run_dir=tmp_path / "d")
+    with pytest.raises(InputError, match="cannot use a dict"):
+        qmdf.run({"points": 1}, overrides(tmp_path), run_dir=tmp_path / "e")
+
+
+def test_medial_axis_says_which_stages_are_missing(tmp_path):
+    from qmdf.registry import STAGES
+
+    if "export" in STAGES:
+        pytest.skip("the full pipeline exists; tests of the MAT itself live with the extraction stages")
+    with pytest.raises(PipelineError, match="made no medial axis \\(stages not available in this version: train"):
+        qmdf.medial_axis(None, overrides(tmp_path), run_dir=tmp_path / "m")
+
+
+def test_api_inside_an_initialised_hydra_keeps_the_callers_state(tmp_path):
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    conf = tmp_path / "userconf"
+    conf.mkdir()
+    (conf / "app.yaml").write_text("x: 1\n")
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        res = qmdf.run(None, overrides(tmp_path, "pipeline.stages=[sample]"), run_dir=tmp_path / "h")
+        assert res.complete
+        assert compose(config_name="app").x == 1  # the caller's Hydra still works
+    assert not GlobalHydra.instance().is_initialized()

@@ -1,0 +1,46 @@
+"""The .ma format: round trip, face edges completed, extended variants, broken files refused."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qmdf.errors import InputError
+from qmdf.geometry.ma_format import MedialMesh, read_ma, write_ma
+
+
+def test_round_trip_adds_face_edges(tmp_path):
+    mat = MedialMesh(np.eye(4, 3), [0.1, 0.2, 0.3, 0.4], edges=[[0, 3]], faces=[[0, 1, 2]])
+    write_ma(tmp_path / "a.ma", mat)
+    text = (tmp_path / "a.ma").read_text().splitlines()
+    assert text[0] == "4 4 1"
+    back = read_ma(tmp_path / "a.ma")
+    assert np.allclose(back.vertices, mat.vertices) and np.allclose(back.radii, mat.radii)
+    assert sorted(map(tuple, back.edges)) == [(0, 1), (0, 2), (0, 3), (1, 2)]
+    assert back.faces.tolist() == [[0, 1, 2]]
+
+
+def test_extended_variant_fields_are_ignored(tmp_path):
+    (tmp_path / "b.ma").write_text("3 1 1\nv 0 0 0 0.5 1\nv 1 0 0 0.25 0\nv 0 1 0 0.1 0\ne 0 1 0\nf 0 1 2 0 1\n")
+    mat = read_ma(tmp_path / "b.ma")
+    assert mat.radii.tolist() == [0.5, 0.25, 0.1] and mat.faces.tolist() == [[0, 1, 2]]
+
+
+@pytest.mark.parametrize("text, message", [
+    ("2 0 0\nv 0 0 0 1\n", "header says 2 0 0"),
+    ("1 1 0\nv 0 0 0 1\ne 0 5\n", "outside 0..0"),
+    ("x y z\n", "not a valid .ma file"),
+])
+def test_broken_files_are_refused(tmp_path, text, message):
+    (tmp_path / "c.ma").write_text(text)
+    with pytest.raises(InputError, match=message):
+        read_ma(tmp_path / "c.ma")
+
+
+def test_the_shared_data_ma_file_reads_if_present():
+    from conftest import DATA
+
+    files = sorted(DATA.rglob("*.ma")) if DATA.exists() else []
+    if not files:
+        pytest.skip("no .ma file in ../shared/data")
+    mat = read_ma(files[0])
+    assert len(mat.vertices) > 0 and np.all(mat.radii >= 0)
