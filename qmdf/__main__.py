@@ -45,7 +45,7 @@ def task(cfg) -> dict:
         sys.stderr.flush()
         raise SystemExit(exc.exit_code) from None
     line = summary_line(result)
-    log.info("%s", line)
+    logging.getLogger("qmdf.summary").info("%s", line)
     print(line, flush=True)
     return result.manifest
 

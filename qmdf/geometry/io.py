@@ -181,13 +181,16 @@ def _check_spread(pts: np.ndarray, src: str) -> None:
 
 
 def _clean_mesh(geom: InputGeometry) -> InputGeometry:
-    """Drop faces with repeated or out-of-range indices or (near) zero area; refuse a mesh with none left."""
+    """Weld coincident vertices (STL soups, OBJ seams), then drop faces with repeated or out-of-range indices
+    or (near) zero area; refuse a mesh with no face left."""
     src = geom.source
-    v = geom.points.points
     f = geom.faces
     if f.ndim != 2 or f.shape[1] != 3:
         raise InputError(f"{src}: faces must be triangles, got an array of shape {f.shape}")
-    in_range = np.all((f >= 0) & (f < len(v)), axis=1)
+    v, first, weld = np.unique(geom.points.points, axis=0, return_index=True, return_inverse=True)
+    in_range = np.all((f >= 0) & (f < len(weld)), axis=1)
+    f = np.where(in_range[:, None], weld.reshape(-1)[np.clip(f, 0, len(weld) - 1)], -1)
+    normals = None if geom.points.normals is None else geom.points.normals[first]
     distinct = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
     keep = in_range & distinct
     fk = f[keep]
@@ -204,5 +207,5 @@ def _clean_mesh(geom: InputGeometry) -> InputGeometry:
     used = np.unique(faces)
     remap = np.full(len(v), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
-    normals = None if geom.points.normals is None else geom.points.normals[used]
+    normals = None if normals is None else normals[used]
     return InputGeometry(src, PointSet(v[used], normals), remap[faces])
