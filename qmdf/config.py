@@ -89,8 +89,9 @@ def register_configs() -> None:
     ConfigStore.instance().store(name="qmdf_base", node=base_config())
 
 
-def validate(cfg: DictConfig | dict) -> list[Problem]:
-    """Every problem in a composed config, each located by its key path."""
+def validate(cfg: DictConfig | dict, base_dir: Path | None = None) -> list[Problem]:
+    """Every problem in a composed config, each located by its key path. Relative paths resolve against
+    ``base_dir`` (the caller's directory; the current one by default)."""
     load_all()
     problems: list[Problem] = []
     for key in cfg.keys():
@@ -113,6 +114,14 @@ def validate(cfg: DictConfig | dict) -> list[Problem]:
     for i, name in enumerate(stages):
         if isinstance(name, str) and name not in STAGES and name not in BUILTIN_STAGES:
             problems.append(Problem(f"pipeline.stages[{i}]", STAGES.why_missing(name)))
+    path = (cfg.get("input") or {}).get("path")
+    if isinstance(path, str) and path and not any(p.key == "input.path" for p in problems):
+        resolved = Path(path).expanduser()
+        resolved = resolved if resolved.is_absolute() else Path(base_dir or Path.cwd()) / resolved
+        if not resolved.exists():
+            problems.append(Problem("input.path", f"file not found: {resolved}"))
+        elif not resolved.is_file():
+            problems.append(Problem("input.path", f"not a file: {resolved}"))
     stop = cfg.get("pipeline", {}).get("stop_after")
     if stop is not None and stop not in stages:
         problems.append(Problem("pipeline.stop_after", f"'{stop}' is not in pipeline.stages"))
@@ -122,9 +131,9 @@ def validate(cfg: DictConfig | dict) -> list[Problem]:
     return problems
 
 
-def check(cfg: DictConfig | dict) -> None:
+def check(cfg: DictConfig | dict, base_dir: Path | None = None) -> None:
     """Raise ConfigError listing every problem, or return silently."""
-    problems = validate(cfg)
+    problems = validate(cfg, base_dir)
     if problems:
         raise ConfigError(problems)
 

@@ -137,10 +137,10 @@ def _section(cfg: DictConfig | dict, key: str) -> Any:
 
 class Pipeline:
     def __init__(self, cfg: DictConfig, run_dir: Path, base_dir: Path):
-        config_mod.check(cfg)
+        self.base_dir = Path(base_dir).resolve()
+        config_mod.check(cfg, self.base_dir)
         self.cfg = cfg
         self.run_dir = Path(run_dir).resolve()
-        self.base_dir = Path(base_dir).resolve()
         root = config_mod.typed_root(cfg)
         self.settings = RunSettings(root.seed, root.input, self.base_dir, self.run_dir)
         self.cache = root.cache

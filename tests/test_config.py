@@ -51,6 +51,17 @@ def test_missing_input_file_and_bad_suffix_are_reported(compose_cfg, tmp_path):
     assert keys(problems) == ["input.path"] and "unsupported file type" in problems[0].message
 
 
+def test_missing_input_file_is_a_config_problem(compose_cfg, tmp_path):
+    problems = cfgmod.validate(compose_cfg("input.path=nowhere/scan.ply", "sample.n_points=0"), base_dir=tmp_path)
+    assert {p.key: p.message for p in problems} == {
+        "input.path": f"file not found: {tmp_path / 'nowhere' / 'scan.ply'}",
+        "sample.n_points": "must be >= 10, got 0",
+    }
+    (tmp_path / "nowhere" / "scan.ply").mkdir(parents=True)
+    problems = cfgmod.validate(compose_cfg("input.path=nowhere/scan.ply"), base_dir=tmp_path)
+    assert [p.message for p in problems] == [f"not a file: {tmp_path / 'nowhere' / 'scan.ply'}"]
+
+
 def test_check_raises_config_error_with_all_lines(compose_cfg):
     with pytest.raises(ConfigError) as err:
         cfgmod.check(compose_cfg("sample.n_points=0", "input.shape=cube"))
