@@ -13,12 +13,15 @@ import numpy as np
 _EPS = 1e-12
 
 
-def sphere_sdf(p: np.ndarray, c: np.ndarray, r: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(p - c, axis=-1) - r
+def sphere_sdf(p: np.ndarray, c: np.ndarray, r: np.ndarray):
+    return np.linalg.norm(p - c, axis=-1) - r, c, r
 
 
-def cone_sdf(p: np.ndarray, c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: np.ndarray) -> np.ndarray:
-    """Distance to the convex hull of spheres (c1, r1) and (c2, r2): min over t in [0,1] of |p - c(t)| - r(t)."""
+def cone_sdf(p: np.ndarray, c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: np.ndarray):
+    """Distance to the convex hull of spheres (c1, r1) and (c2, r2): min over t in [0,1] of |p - c(t)| - r(t).
+
+    Returns (distance, foot centre, foot radius): the minimising sphere, whose boundary holds the nearest
+    point of the envelope, ``foot_c + foot_r * (p - foot_c) / |p - foot_c|``."""
     d = c2 - c1
     dr = r2 - r1
     q = p - c1
@@ -31,14 +34,17 @@ def cone_sdf(p: np.ndarray, c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: 
     proper = a - dr * dr > _EPS * np.maximum(a, 1.0)
     shift = np.where(proper, dr * h / np.sqrt(np.maximum(safe_a * (a - dr * dr), _EPS)), 0.0)
     t = np.clip(t0 + shift, 0.0, 1.0)
-    along = np.linalg.norm(q - t[:, None] * d, axis=1) - (r1 + t * dr)
     # Improper cone (one sphere holds the other) or coincident centres: the minimum is at an end.
-    ends = np.minimum(np.linalg.norm(q, axis=1) - r1, np.linalg.norm(p - c2, axis=1) - r2)
-    return np.where(proper & (a > _EPS), along, ends)
+    end_t = np.where(np.linalg.norm(q, axis=1) - r1 <= np.linalg.norm(p - c2, axis=1) - r2, 0.0, 1.0)
+    t = np.where(proper & (a > _EPS), t, end_t)
+    foot_c = c1 + t[:, None] * d
+    foot_r = r1 + t * dr
+    return np.linalg.norm(p - foot_c, axis=1) - foot_r, foot_c, foot_r
 
 
-def slab_sdf(p, c1, r1, c2, r2, c3, r3) -> np.ndarray:
+def slab_sdf(p, c1, r1, c2, r2, c3, r3):
     """Distance to the convex hull of three spheres: min over barycentric l of |p - c(l)| - r(l).
+    Returns (distance, foot centre, foot radius) as ``cone_sdf`` does.
 
     At an interior minimum the unit vector u from the foot c(l) to p satisfies u . e_k = -dr_k (k = 2, 3):
     its in-plane part follows from a 2x2 Gram system, its normal part from |u| = 1 (on p's side), and the
@@ -75,6 +81,161 @@ def slab_sdf(p, c1, r1, c2, r2, c3, r3) -> np.ndarray:
     l3 = (w3 * g22 - w2 * g23) / sdet
     l1 = 1.0 - l2 - l3
     inside = ok & (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
-    interior = t - (r1 + l2 * d2 + l3 * d3)
-    edges = np.minimum(np.minimum(cone_sdf(p, c1, r1, c2, r2), cone_sdf(p, c2, r2, c3, r3)), cone_sdf(p, c1, r1, c3, r3))
-    return np.where(inside, np.minimum(interior, edges), edges)
+    foot_r = r1 + l2 * d2 + l3 * d3
+    best, best_c, best_r = t - foot_r, foot, foot_r
+    best = np.where(inside, best, np.inf)
+    for a, ra, b, rb in ((c1, r1, c2, r2), (c2, r2, c3, r3), (c1, r1, c3, r3)):
+        val, fc, fr = cone_sdf(p, a, ra, b, rb)
+        better = val < best
+        best = np.where(better, val, best)
+        best_c = np.where(better[:, None], fc, best_c)
+        best_r = np.where(better, fr, best_r)
+    return best, best_c, best_r
+
+
+class EnvelopeUnion:
+    """The shape a medial mesh reconstructs: the union of its slabs (faces), cones (edges in no face) and
+    spheres (vertices in neither). ``sdf`` is its exact signed distance outside and its exact zero set;
+    inside, min over primitives bounds the depth from below (as for any union of SDFs).
+
+    Exact culling makes it fast: the vertex spheres lie inside the union, so their nearest ones (in power
+    distance) give an upper bound u(p); a primitive can only go below u if its bounding sphere (m_j, rho_j)
+    does, |p - m_j| - rho_j < u. Primitives are grouped by rho so each group's KD-tree query is tight.
+    """
+
+    def __init__(self, centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray, n_bins: int = 12):
+        from scipy.spatial import cKDTree
+
+        self.c = np.asarray(centers, np.float64)
+        self.r = np.asarray(radii, np.float64)
+        if len(self.c) == 0:
+            raise ValueError("a medial mesh without vertices has no envelope")
+        faces = np.asarray(faces, np.int64).reshape(-1, 3)
+        edges = np.asarray(edges, np.int64).reshape(-1, 2)
+        edges = edges[edges[:, 0] != edges[:, 1]]
+        face_edges = {tuple(sorted(e)) for f in faces for e in ((f[0], f[1]), (f[1], f[2]), (f[0], f[2]))}
+        lone = np.array([e for e in {tuple(sorted(e)) for e in edges.tolist()} if e not in face_edges], np.int64).reshape(-1, 2)
+        used = np.zeros(len(self.c), bool)
+        used[faces.ravel()] = True
+        used[lone.ravel()] = True
+        # kind 0: sphere, 1: cone, 2: slab; each primitive as 3 vertex indices (repeated for lower kinds)
+        spheres = np.flatnonzero(~used)
+        self.prims = np.concatenate([
+            np.repeat(spheres[:, None], 3, 1), np.column_stack([lone, lone[:, 1]]), faces,
+        ]).astype(np.int64)
+        self.kind = np.concatenate([np.zeros(len(spheres)), np.ones(len(lone)), np.full(len(faces), 2)]).astype(np.int8)
+        pc = self.c[self.prims]  # (P, 3, 3)
+        self.anchor = pc.mean(1)
+        self.rho = (np.linalg.norm(pc - self.anchor[:, None], axis=2) + self.r[self.prims]).max(1)
+        edges_q = np.unique(np.quantile(self.rho, np.linspace(0, 1, n_bins + 1)))
+        which = np.clip(np.searchsorted(edges_q, self.rho, side="right") - 1, 0, max(len(edges_q) - 2, 0))
+        self.bins = []
+        for b in np.unique(which):
+            members = np.flatnonzero(which == b)
+            self.bins.append((members, float(self.rho[members].max()), cKDTree(self.anchor[members])))
+        # power distance |p - c|^2 - r^2 is Euclidean distance in 4D with c lifted by sqrt(R^2 - r^2)
+        big = float(self.r.max())
+        self._lift = np.sqrt(np.maximum(big * big - self.r * self.r, 0.0))
+        self._sphere_tree = cKDTree(np.column_stack([self.c, self._lift]))
+
+    @classmethod
+    def from_mat(cls, mat) -> "EnvelopeUnion":
+        return cls(mat.vertices, mat.radii, mat.edges, mat.faces)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return (self.c - self.r[:, None]).min(0), (self.c + self.r[:, None]).max(0)
+
+    def _upper_bound(self, p: np.ndarray, k: int = 8) -> np.ndarray:
+        k = min(k, len(self.c))
+        _, idx = self._sphere_tree.query(np.column_stack([p, np.zeros(len(p))]), k=k)
+        idx = idx.reshape(len(p), -1)
+        return (np.linalg.norm(p[:, None] - self.c[idx], axis=2) - self.r[idx]).min(1), idx[:, 0]
+
+    def _lower_bound(self, p: np.ndarray) -> np.ndarray:
+        lb = np.full(len(p), np.inf)
+        for _, rho_max, tree in self.bins:
+            d, _ = tree.query(p, k=1)
+            lb = np.minimum(lb, d - rho_max)
+        return lb
+
+    def eval_prims(self, p: np.ndarray, prim: np.ndarray):
+        """(distance, foot centre, foot radius) of primitive ``prim[i]`` at point ``p[i]``."""
+        ids = self.prims[prim]
+        c, r = self.c[ids], self.r[ids]
+        out_d = np.empty(len(p))
+        out_c = np.empty((len(p), 3))
+        out_r = np.empty(len(p))
+        kind = self.kind[prim]
+        for k, fn in ((0, lambda q, cc, rr: sphere_sdf(q, cc[:, 0], rr[:, 0])),
+                      (1, lambda q, cc, rr: cone_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1])),
+                      (2, lambda q, cc, rr: slab_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1], cc[:, 2], rr[:, 2]))):
+            sel = kind == k
+            if sel.any():
+                out_d[sel], out_c[sel], out_r[sel] = fn(p[sel], c[sel], r[sel])
+        return out_d, out_c, out_r
+
+    def sdf(self, points: np.ndarray, band: float | None = None, chunk: int = 8192, return_argmin: bool = False):
+        """Signed distance of ``points`` to the union. With ``band``, points provably farther than ``band``
+        from the surface get a bound of the right sign instead of the exact value (enough for meshing).
+        With ``return_argmin``, also the index of the primitive attaining the minimum (-1 where bounded)."""
+        points = np.asarray(points, np.float64)
+        out = np.empty(len(points))
+        arg = np.full(len(points), -1, np.int64)
+        for s in range(0, len(points), chunk):
+            p = points[s:s + chunk]
+            d, a = self._sdf_chunk(p, band)
+            out[s:s + chunk], arg[s:s + chunk] = d, a
+        return (out, arg) if return_argmin else out
+
+    def _sdf_chunk(self, p: np.ndarray, band: float | None):
+        u, _ = self._upper_bound(p)
+        best = u.copy()
+        arg = np.full(len(p), -1, np.int64)
+        todo = np.ones(len(p), bool)
+        if band is not None:
+            todo &= u >= -band  # deeper inside than band: the sign is all that matters
+            lb = np.full(len(p), -np.inf)
+            lb[todo] = self._lower_bound(p[todo])
+            far = todo & (lb > band)
+            best[far] = lb[far]  # farther outside than band
+            todo &= ~far
+        idx = np.flatnonzero(todo)
+        if len(idx) == 0:
+            return best, arg
+        pts, prims = [], []
+        for members, rho_max, tree in self.bins:
+            radius = u[idx] + rho_max
+            ok = radius > 0
+            if not ok.any():
+                continue
+            lists = tree.query_ball_point(p[idx[ok]], radius[ok], return_sorted=False)
+            counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+            if counts.sum() == 0:
+                continue
+            pts.append(np.repeat(idx[ok], counts))
+            prims.append(members[np.fromiter((j for x in lists for j in x), np.int64, int(counts.sum()))])
+        if not pts:
+            return best, arg
+        pi, pj = np.concatenate(pts), np.concatenate(prims)
+        val, _, _ = self.eval_prims(p[pi], pj)
+        order = np.lexsort((val, pi))  # per point, the smallest value first
+        pi, pj, val = pi[order], pj[order], val[order]
+        first = np.r_[True, pi[1:] != pi[:-1]]
+        pi, pj, val = pi[first], pj[first], val[first]
+        better = val <= best[pi]
+        best[pi[better]] = val[better]
+        arg[pi[better]] = pj[better]
+        return best, arg
+
+    def snap(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project points near the surface onto it exactly: each onto the boundary of the primitive that
+        attains the union's minimum there. Returns (projected points, their union SDF, ~0 where exposed)."""
+        _, arg = self.sdf(points, return_argmin=True)
+        has = arg >= 0
+        out = points.copy()
+        _, fc, fr = self.eval_prims(points[has], arg[has])
+        v = points[has] - fc
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        out[has] = fc + fr[:, None] * v / np.maximum(n, _EPS)
+        return out, self.sdf(out)
