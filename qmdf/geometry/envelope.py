@@ -239,3 +239,34 @@ class EnvelopeUnion:
         n = np.linalg.norm(v, axis=1, keepdims=True)
         out[has] = fc + fr[:, None] * v / np.maximum(n, _EPS)
         return out, self.sdf(out)
+
+
+def reconstruct_mesh(union: EnvelopeUnion, resolution: int = 256):
+    """The union's boundary as a triangle mesh (marching cubes on a narrow-band grid)."""
+    from qmdf.geometry.grid import narrow_band_level_set
+
+    lo, hi = union.bounds
+    pad = 3.0 * float((hi - lo).max()) / (resolution - 1)
+    grid = narrow_band_level_set(lambda p, band: union.sdf(p, band=band), lo - pad, hi + pad, resolution)
+    return grid.mesh()
+
+
+def sample_union_surface(union: EnvelopeUnion, count: int, rng: np.random.Generator, resolution: int = 128,
+                         mesh=None) -> np.ndarray:
+    """``count`` points exactly on the union's boundary, nearly uniform by area: uniform samples of the
+    marching-cubes surface, each snapped onto the primitive that attains the union there."""
+    from qmdf.stages.sample import sample_surface
+
+    mesh = mesh if mesh is not None else reconstruct_mesh(union, resolution)
+    if mesh is None:
+        raise ValueError("the medial mesh reconstructs to an empty surface")
+    out = np.empty((0, 3))
+    tol = 1e-9 * max(1.0, float(np.abs(mesh.vertices).max()))
+    for _ in range(8):
+        need = count - len(out)
+        raw = sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.faces), int(need * 1.3) + 16, rng).points
+        snapped, d = union.snap(raw)
+        out = np.vstack([out, snapped[np.abs(d) <= tol]])
+        if len(out) >= count:
+            return out[:count]
+    raise ValueError("could not snap enough samples onto the envelope")
