@@ -8,6 +8,8 @@ vectorised over pairs of points and primitives: arrays of shape (N, 3) and (N,).
 """
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 _EPS = 1e-12
@@ -82,14 +84,16 @@ def slab_sdf(p, c1, r1, c2, r2, c3, r3):
     l1 = 1.0 - l2 - l3
     inside = ok & (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
     foot_r = r1 + l2 * d2 + l3 * d3
-    best, best_c, best_r = t - foot_r, foot, foot_r
-    best = np.where(inside, best, np.inf)
-    for a, ra, b, rb in ((c1, r1, c2, r2), (c2, r2, c3, r3), (c1, r1, c3, r3)):
-        val, fc, fr = cone_sdf(p, a, ra, b, rb)
-        better = val < best
-        best = np.where(better, val, best)
-        best_c = np.where(better[:, None], fc, best_c)
-        best_r = np.where(better, fr, best_r)
+    best, best_c, best_r = np.where(inside, t - foot_r, np.inf), foot, foot_r
+    # With an interior stationary point, convexity makes it the minimum; only the others need the cones.
+    edge = np.flatnonzero(~inside)
+    if len(edge):
+        pe = p[edge]
+        for a, ra, b, rb in ((c1, r1, c2, r2), (c2, r2, c3, r3), (c1, r1, c3, r3)):
+            val, fc, fr = cone_sdf(pe, a[edge], ra[edge], b[edge], rb[edge])
+            better = val < best[edge]
+            sel = edge[better]
+            best[sel], best_c[sel], best_r[sel] = val[better], fc[better], fr[better]
     return best, best_c, best_r
 
 
@@ -137,6 +141,10 @@ class EnvelopeUnion:
         big = float(self.r.max())
         self._lift = np.sqrt(np.maximum(big * big - self.r * self.r, 0.0))
         self._sphere_tree = cKDTree(np.column_stack([self.c, self._lift]))
+        self._extent = float(np.abs(self.c).max() + self.r.max())
+        # one primitive per vertex (any that holds it): its exact value tightens the upper bound
+        self._vertex_prim = np.full(len(self.c), -1, np.int64)
+        self._vertex_prim[self.prims[::-1].ravel()] = np.repeat(np.arange(len(self.prims))[::-1], 3)
 
     @classmethod
     def from_mat(cls, mat) -> "EnvelopeUnion":
@@ -147,10 +155,14 @@ class EnvelopeUnion:
         return (self.c - self.r[:, None]).min(0), (self.c + self.r[:, None]).max(0)
 
     def _upper_bound(self, p: np.ndarray, k: int = 8) -> np.ndarray:
+        """min over nearby vertex spheres and one primitive through the best of them (all inside the union)."""
         k = min(k, len(self.c))
         _, idx = self._sphere_tree.query(np.column_stack([p, np.zeros(len(p))]), k=k)
         idx = idx.reshape(len(p), -1)
-        return (np.linalg.norm(p[:, None] - self.c[idx], axis=2) - self.r[idx]).min(1), idx[:, 0]
+        vals = np.linalg.norm(p[:, None] - self.c[idx], axis=2) - self.r[idx]
+        best_v = idx[np.arange(len(p)), vals.argmin(1)]
+        prim_val, _, _ = self.eval_prims(p, self._vertex_prim[best_v])
+        return np.minimum(vals.min(1), prim_val)
 
     def _lower_bound(self, p: np.ndarray) -> np.ndarray:
         lb = np.full(len(p), np.inf)
@@ -189,7 +201,7 @@ class EnvelopeUnion:
         return (out, arg) if return_argmin else out
 
     def _sdf_chunk(self, p: np.ndarray, band: float | None):
-        u, _ = self._upper_bound(p)
+        u = self._upper_bound(p)
         best = u.copy()
         arg = np.full(len(p), -1, np.int64)
         todo = np.ones(len(p), bool)
@@ -204,34 +216,35 @@ class EnvelopeUnion:
         if len(idx) == 0:
             return best, arg
         pts, prims = [], []
+        pad = 1e-9 * (1.0 + self._extent)  # the bound can be attained exactly: keep it inside the query ball
         for members, rho_max, tree in self.bins:
-            radius = u[idx] + rho_max
+            radius = u[idx] + rho_max + pad
             ok = radius > 0
             if not ok.any():
                 continue
             lists = tree.query_ball_point(p[idx[ok]], radius[ok], return_sorted=False)
-            counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-            if counts.sum() == 0:
+            counts = np.fromiter(map(len, lists), np.int64, len(lists))
+            total = int(counts.sum())
+            if total == 0:
                 continue
             pts.append(np.repeat(idx[ok], counts))
-            prims.append(members[np.fromiter((j for x in lists for j in x), np.int64, int(counts.sum()))])
+            prims.append(members[np.fromiter(itertools.chain.from_iterable(lists), np.int64, total)])
         if not pts:
             return best, arg
-        pi, pj = np.concatenate(pts), np.concatenate(prims)
-        val, _, _ = self.eval_prims(p[pi], pj)
-        order = np.lexsort((val, pi))  # per point, the smallest value first
-        pi, pj, val = pi[order], pj[order], val[order]
-        first = np.r_[True, pi[1:] != pi[:-1]]
-        pi, pj, val = pi[first], pj[first], val[first]
-        better = val <= best[pi]
-        best[pi[better]] = val[better]
-        arg[pi[better]] = pj[better]
+        from qmdf.geometry._envelope_kernels import min_over_pairs
+
+        # the culling keeps every primitive that can reach u, the minimiser among them: start from +inf so
+        # the minimiser is recorded even when it only ties the bound
+        exact = np.full(len(p), np.inf)
+        min_over_pairs(p, np.concatenate(pts), np.concatenate(prims), self.prims, self.kind, self.c, self.r, exact, arg)
+        found = arg >= 0
+        best[found] = exact[found]
         return best, arg
 
-    def snap(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Project points near the surface onto it exactly: each onto the boundary of the primitive that
-        attains the union's minimum there. Returns (projected points, their union SDF, ~0 where exposed)."""
-        _, arg = self.sdf(points, return_argmin=True)
+    def snap(self, points: np.ndarray, argmin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Project points onto the boundary of the primitive that attains the union's minimum there (for a
+        point inside, the deepest one). Returns (projected points, their union SDF: ~0 where exposed)."""
+        arg = self.sdf(points, return_argmin=True)[1] if argmin is None else argmin
         has = arg >= 0
         out = points.copy()
         _, fc, fr = self.eval_prims(points[has], arg[has])

@@ -48,35 +48,53 @@ def grid_axes(lo: np.ndarray, hi: np.ndarray, resolution: int) -> tuple[list[np.
 
 def narrow_band_level_set(field: BandedField, lo, hi, resolution: int, level: float = 0.0, coarse_step: int = 8,
                           chunk: int = 1 << 18) -> GridLevelSet:
-    """``field - level`` on a grid of ``resolution`` nodes along the longest side of [lo, hi]."""
+    """``field - level`` on a grid of ``resolution`` nodes along the longest side of [lo, hi], refined level by
+    level (steps coarse_step, coarse_step/2, ..., 1): only cells the level set may cross are subdivided."""
     axes, spacing = grid_axes(lo, hi, resolution)
     shape = tuple(len(a) for a in axes)
-    f = max(1, int(coarse_step))
-    cidx = [np.unique(np.r_[np.arange(0, n, f), n - 1]) for n in shape]
-    cpts = np.stack(np.meshgrid(*[axes[k][cidx[k]] for k in range(3)], indexing="ij"), -1).reshape(-1, 3)
-    cell_diag = float(np.linalg.norm(spacing * f))
-    cvals = _evaluate(field, cpts, cell_diag, level, chunk).reshape([len(c) for c in cidx])
+    step = 1 << max(0, int(np.log2(max(1, coarse_step))))
+    # nodes of the coarsest lattice (plus the last node of each axis)
+    lattice = [np.unique(np.r_[np.arange(0, n, step), n - 1]) for n in shape]
+    nodes = np.stack(np.meshgrid(*lattice, indexing="ij"), -1).reshape(-1, 3)
+    values = np.full(shape, np.nan, np.float32)
+    evaluated = 0
+    known = np.zeros(shape, bool)
+    while True:
+        new = nodes[~known[tuple(nodes.T)]]
+        if len(new):
+            pts = np.column_stack([axes[k][new[:, k]] for k in range(3)])
+            values[tuple(new.T)] = _evaluate(field, pts, 2.0 * float(np.linalg.norm(spacing * step)), level, chunk)
+            known[tuple(new.T)] = True
+            evaluated += len(new)
+        if step == 1:
+            break
+        # cells of this lattice (origin node + step) that the level set may cross: a corner within a diagonal
+        diag = float(np.linalg.norm(spacing * step))
+        origins = nodes[np.all(nodes + step <= np.array(shape) - 1 + step - 1, axis=1)]
+        origins = origins[np.all(origins < np.array(shape) - 1, axis=1)]
+        corners = np.minimum(origins[:, None, :] + step * _CORNERS[None], np.array(shape) - 1)
+        near = (np.abs(values[tuple(corners.reshape(-1, 3).T)]).reshape(-1, 8) < diag).any(1)
+        origins = origins[near]
+        step //= 2
+        offsets = step * _SUB[None]
+        nodes = np.unique(np.minimum((origins[:, None, :] + offsets).reshape(-1, 3), np.array(shape) - 1), axis=0)
+    # every node never reached lies in a cell no level-set crossing can enter: give it its cell's sign
+    values = _fill_from_coarser(values, known)
+    return GridLevelSet(values, np.array([a[0] for a in axes]), spacing, evaluated)
 
-    # coarse cells the level set may cross: some corner within a cell diagonal of the level
-    near = np.abs(cvals) < cell_diag
-    active = np.zeros([len(c) - 1 for c in cidx], bool)
-    for dx in (0, 1):
-        for dy in (0, 1):
-            for dz in (0, 1):
-                active |= near[dx:dx + active.shape[0], dy:dy + active.shape[1], dz:dz + active.shape[2]]
-    # each fine node takes its cell's corner value (sign-correct); nodes of active cells are evaluated
-    cell_of = [np.minimum(np.searchsorted(c, np.arange(n), side="right") - 1, len(c) - 2) for c, n in zip(cidx, shape)]
-    values = cvals[np.ix_(cell_of[0], cell_of[1], cell_of[2])].astype(np.float32)
-    mask = np.zeros(shape, bool)
-    for i, j, k in zip(*np.nonzero(active)):
-        mask[cidx[0][i]:cidx[0][i + 1] + 1, cidx[1][j]:cidx[1][j + 1] + 1, cidx[2][k]:cidx[2][k + 1] + 1] = True
-    nodes = np.argwhere(mask)
-    if len(nodes):
-        pts = np.column_stack([axes[k][nodes[:, k]] for k in range(3)])
-        fine_band = 2.0 * float(np.linalg.norm(spacing))
-        values[mask] = _evaluate(field, pts, fine_band, level, chunk)
-    values[np.ix_(*cidx)] = cvals
-    return GridLevelSet(values, np.array([a[0] for a in axes]), spacing, int(len(nodes)))
+
+_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+_SUB = np.array([[i, j, k] for i in (0, 1, 2) for j in (0, 1, 2) for k in (0, 1, 2)])
+
+
+def _fill_from_coarser(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Fill unknown nodes with the value of the nearest known node (sign-correct for 1-Lipschitz fields)."""
+    from scipy import ndimage
+
+    if known.all():
+        return values
+    _, idx = ndimage.distance_transform_edt(~known, return_indices=True)
+    return values[tuple(idx)]
 
 
 def _evaluate(field: BandedField, pts: np.ndarray, band: float, level: float, chunk: int) -> np.ndarray:
