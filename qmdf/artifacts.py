@@ -99,5 +99,19 @@ JSON = ArtifactKind(
     lambda v, p: p.write_text(json.dumps(v, indent=2, default=_json_default) + "\n"),
     lambda p: json.loads(p.read_text()),
 )
+def _save_mat(value: Any, path: Path) -> None:
+    from qmdf.geometry.ma_format import write_ma
+
+    write_ma(path, value)
+
+
+def _load_mat(path: Path) -> Any:
+    from qmdf.geometry.ma_format import read_ma
+
+    return read_ma(path)
+
+
+#: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
+MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
 #: A file the stage writes itself (a checkpoint, a .ma file): ``ctx.path(name)`` gives where.
 FILE = ArtifactKind("file", "")

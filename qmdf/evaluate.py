@@ -20,9 +20,10 @@ from qmdf.geometry.ma_format import MedialMesh
 from qmdf.geometry.normalize import Normalization
 
 
-def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray, samples: int = 100_000,
-              resolution: int = 128, seed: int = 0, picture: Path | None = None) -> dict:
-    """Every metric of ``mat`` against the reference mesh, both already in the same (unit-box) frame."""
+def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray | None, samples: int = 100_000,
+              resolution: int = 128, seed: int = 0, picture: Path | None = None, return_mesh: bool = False):
+    """Every metric of ``mat`` against the reference (a mesh, or points when ``ref_faces`` is None), both
+    already in the same (unit-box) frame. With ``return_mesh``, also the meshed reconstruction."""
     from qmdf.geometry.envelope import EnvelopeUnion
 
     if len(mat.vertices) == 0:
@@ -51,10 +52,15 @@ def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray, 
     if picture is not None:
         from qmdf.viz import render_mesh
 
-        d = M.point_to_mesh_distance(recon.vertices, ref_vertices, ref_faces)
+        if ref_faces is None:
+            from scipy.spatial import cKDTree
+
+            d = cKDTree(ref_vertices).query(recon.vertices)[0]
+        else:
+            d = M.point_to_mesh_distance(recon.vertices, ref_vertices, ref_faces)
         render_mesh(picture, recon.vertices, recon.faces, d, title="reconstruction from the MAT",
                     label="distance to the reference (unit box)", cmap="magma")
-    return out
+    return (out, recon) if return_mesh else out
 
 
 def format_report(name: str, m: dict) -> str:

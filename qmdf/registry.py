@@ -162,6 +162,7 @@ _BUILTIN_MODULES = (
     "qmdf.geometry.shapes",
     "qmdf.plugins.degradations",
     "qmdf.stages.sample",
+    "qmdf.stages.evaluate",
 )
 
 _loaded = False
