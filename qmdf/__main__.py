@@ -20,7 +20,11 @@ log = logging.getLogger("qmdf")
 def summary_line(result) -> str:
     m = result.manifest
     parts = [f"{s['name']} {s['status']} {s['seconds']:.2f}s" for s in m["stages"]]
-    line = f"qmdf {m['status']}: " + ", ".join(parts) + f" -> {result.run_dir}"
+    line = f"qmdf {m['status']}: " + ", ".join(parts)
+    if "metrics" in result.artifacts:
+        mm = result.load("metrics")
+        line += f" | CD {mm['chamfer']:.3e} HD {mm['hausdorff']:.3e} chi {mm['chi']}"
+    line += f" -> {result.run_dir}"
     if m["unavailable_stages"]:
         line += f" (not available in this version: {', '.join(m['unavailable_stages'])})"
     return line

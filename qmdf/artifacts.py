@@ -111,6 +111,19 @@ def _load_mat(path: Path) -> Any:
     return read_ma(path)
 
 
+def _save_tets(value: Any, path: Path) -> None:
+    vertices, tets = value
+    with open(path, "wb") as f:
+        np.savez(f, vertices=np.asarray(vertices, np.float64), tets=np.asarray(tets, np.int64))
+
+
+def _load_tets(path: Path) -> Any:
+    with np.load(path, allow_pickle=False) as data:
+        return data["vertices"], data["tets"]
+
+
+#: A tetrahedral mesh as (vertices (V, 3), tets (T, 4))
+TETS = ArtifactKind("tets", ".npz", _save_tets, _load_tets)
 #: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
 MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
 #: A file the stage writes itself (a checkpoint, a .ma file): ``ctx.path(name)`` gives where.

@@ -42,6 +42,19 @@ def test_score_against_points_matches_score_against_the_mesh():
     assert on_points["chamfer"] < on_mesh["chamfer"] + 2e-3  # nearest points add about half their spacing
 
 
+def test_closed_membrane_boundary_comes_from_folds():
+    """A flattened double cover of a disc (our membrane's form) has no one-face edge: its rim is its folds."""
+    n = 48
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    v = np.vstack([np.c_[0.3 * np.cos(t), 0.3 * np.sin(t), np.zeros(n)], [[0, 0, 1e-3], [0, 0, -1e-3]]])
+    f = np.array([[i, (i + 1) % n, n] for i in range(n)] + [[(i + 1) % n, i, n + 1] for i in range(n)])
+    mat = MedialMesh(v, np.full(len(v), 0.1), np.zeros((0, 2), int), f)
+    ref = get_shape("torus").mesh(32)  # any reference: only the boundary is checked here
+    m = score_mat(mat, ref.vertices, ref.faces, samples=500, resolution=32)
+    assert m["boundary_rule"].startswith("fold edges") and m["boundary_edges"] == n
+    assert m["boundary_smoothness"] == pytest.approx(2 * np.pi / n)
+
+
 def test_evaluate_cli_on_a_hand_made_ma(cli, tmp_path):
     # the ellipsoid in its own units (x 40, shifted): the CLI normalises both into the reference's unit box
     mat = ellipsoid_mat()
@@ -70,6 +83,7 @@ def test_evaluate_stage_and_multirun_table(cli):
             "pipeline.stages=[sample,torus_mat,evaluate]", "evaluate.samples=3000", "evaluate.resolution=48"]
     proc = cli(*args, env=env)
     assert proc.returncode == 0, proc.stderr
+    assert "| CD " in proc.stdout and " chi 0 -> " in proc.stdout  # the one-line summary carries the metrics
     (m,) = manifests(cli.cwd / "runs")
     assert m["status"] == "complete"
     run = Path(m["run_dir"])
@@ -91,3 +105,31 @@ def test_evaluate_stage_and_multirun_table(cli):
     # sample was computed once above and reused by every job of the sweep
     jobs = manifests(table.parent)
     assert all(j["stages"][0]["status"] == "cached" for j in jobs)
+
+
+def test_evaluate_stage_prefers_the_tetrahedral_chi(compose_cfg, tmp_path):
+    """With the contracted covering available, chi is V - E + F - C of its tets (paper Sec. 5.1)."""
+    from qmdf.artifacts import MAT, POINTS, TETS
+    from qmdf.pipeline import Pipeline
+    from qmdf.registry import STAGES
+    from qmdf.stage import Stage, register_stage
+
+    class RingOfTets(Stage):
+        inputs = {"points": POINTS}
+        outputs = {"mat": MAT, "contracted_tets": TETS}
+
+        def run(self, ctx):
+            ctx.save("mat", torus_mat())
+            n = 8  # a closed ring of tets sharing edges: a solid torus, chi 0
+            v = np.vstack([torus_mat(n).vertices, torus_mat(n).vertices + [0, 0, 0.01]])
+            ctx.save("contracted_tets", (v, [[i, (i + 1) % n, n + i, n + (i + 1) % n] for i in range(n)]))
+
+    register_stage("ring_of_tets")(RingOfTets)
+    try:
+        cfg = compose_cfg("input.shape=torus", "input.shape_resolution=64", "pipeline.stages=[sample,ring_of_tets,evaluate]",
+                          "evaluate.samples=500", "evaluate.resolution=32", "evaluate.picture=false")
+        res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
+    finally:
+        STAGES.remove("ring_of_tets")
+    m = res.load("metrics")
+    assert m["chi"] == 0 and m["chi_rule"].startswith("V - E + F - C") and m["chi_membrane"] == 0

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import JSON, MAT, MESH, POINTS
+from qmdf.artifacts import JSON, MAT, MESH, POINTS, TETS
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -15,6 +15,7 @@ class EvaluateConfig:
     samples: int = param(100_000, ge=100, doc="samples per surface for CD / HD")
     resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction (sampling, pictures, mesh output)")
     picture: bool = param(True, doc="write reconstruction.png coloured by the distance to the reference")
+    fold_deg: float = param(150.0, gt=90, lt=180, doc="a closed membrane's boundary: edges where the normals turn by more than this")
 
 
 @register_stage("evaluate")
@@ -23,7 +24,7 @@ class Evaluate(Stage):
 
     Config = EvaluateConfig
     inputs = {"mat": MAT}
-    optional_inputs = {"surface": MESH, "clean_points": POINTS}
+    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS}
     outputs = {"metrics": JSON, "reconstruction": MESH}
     version = "1"
 
@@ -38,8 +39,17 @@ class Evaluate(Stage):
             ref_v, ref_f = ctx.load("clean_points").points, None
         picture = ctx.stage_dir / "reconstruction.png" if ctx.cfg.picture else None
         metrics, recon = score_mat(mat, ref_v, ref_f, ctx.cfg.samples, ctx.cfg.resolution, ctx.seed, picture,
-                                   return_mesh=True)
+                                   return_mesh=True, fold_deg=ctx.cfg.fold_deg)
         metrics["reference"] = "input surface" if ctx.has("surface") else "input points"
+        if ctx.has("contracted_tets"):  # the paper's chi: V - E + F - C of the contracted covering
+            from qmdf.geometry.metrics import euler_tetrahedral
+
+            verts, tets = ctx.load("contracted_tets")
+            metrics["chi_membrane"] = metrics["chi"]
+            metrics["chi"] = euler_tetrahedral(len(verts), tets)
+            metrics["chi_rule"] = "V - E + F - C of the contracted tetrahedral covering"
+        else:
+            metrics["chi_rule"] = "V - E + F of the medial mesh"
         ctx.save("metrics", metrics)
         ctx.save("reconstruction", recon)
         ctx.log.info(

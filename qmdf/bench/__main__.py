@@ -1,0 +1,22 @@
+"""``python -m qmdf.bench SUITE [options]``: run one benchmark suite and print its table."""
+from __future__ import annotations
+
+import sys
+
+SUITES = {
+    "models": "qmdf.bench.models",
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    import importlib
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in SUITES:
+        print(f"usage: python -m qmdf.bench {{{','.join(SUITES)}}} [--json PATH] [options]", file=sys.stderr)
+        return 2
+    return importlib.import_module(SUITES[argv[0]]).main(argv[1:])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
