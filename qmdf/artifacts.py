@@ -126,5 +126,13 @@ def _load_tets(path: Path) -> Any:
 TETS = ArtifactKind("tets", ".npz", _save_tets, _load_tets)
 #: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
 MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
+def _load_field(path: Path) -> Any:
+    from qmdf.fields.field import Field
+
+    return Field.load(path)
+
+
+#: The trained field (qmdf.fields.field.Field), written by the stage with Field.save at ctx.path(name)
+FIELD = ArtifactKind("field", ".pt", None, _load_field)
 #: A file the stage writes itself (a checkpoint, a .ma file): ``ctx.path(name)`` gives where.
 FILE = ArtifactKind("file", "")

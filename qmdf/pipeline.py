@@ -224,6 +224,8 @@ class Pipeline:
         )
         key = self.stage_key(step, inputs, ctx)
         entry = self.cache_dir / step.name / key
+        ctx.work_dir = entry.with_name(f"{key}.work") if self.cache.enabled else self.run_dir / ".work" / step.dirname
+        ctx.work_dir.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         status = "ran"
         use_cache = self.cache.enabled
@@ -238,6 +240,7 @@ class Pipeline:
                 written = self._execute(step, ctx, final_dir)
                 if use_cache:
                     self._store(entry, final_dir, written)
+            shutil.rmtree(ctx.work_dir, ignore_errors=True)
         seconds = time.perf_counter() - t0
         record = {
             "index": step.index, "name": step.name, "status": status, "key": key,

@@ -156,12 +156,13 @@ STAGES = Registry("stage", "qmdf.stages", reserved=RESERVED)
 DEGRADATIONS = Registry("degradation", "qmdf.degradations")
 SHAPES = Registry("shape", "qmdf.shapes")
 
-ALL = (STAGES, DEGRADATIONS, SHAPES)
-
 _BUILTIN_MODULES = (
     "qmdf.geometry.shapes",
     "qmdf.plugins.degradations",
+    "qmdf.fields.backbones",
+    "qmdf.fields.losses",
     "qmdf.stages.sample",
+    "qmdf.stages.train",
     "qmdf.stages.evaluate",
 )
 
@@ -178,5 +179,13 @@ def load_all() -> None:
 
     for mod in _BUILTIN_MODULES:
         importlib.import_module(mod)
-    for reg in ALL:
+    for reg in all_registries():
         reg.load_entry_points()
+
+
+def all_registries() -> tuple[Registry, ...]:
+    """Every registry, the field's too (they live beside the torch code that fills them)."""
+    from qmdf.fields.backbones import BACKBONES
+    from qmdf.fields.losses import LOSSES
+
+    return (STAGES, DEGRADATIONS, SHAPES, BACKBONES, LOSSES)

@@ -89,6 +89,9 @@ class StageContext:
     stage_dir: Path
     input_paths: Mapping[str, Path]
     log: logging.Logger
+    #: Scratch that survives a failed or interrupted run of the same cache key (checkpoints to resume from);
+    #: the pipeline removes it once the stage succeeds.
+    work_dir: Path | None = None
     written: dict[str, Path] = field(default_factory=dict)
 
     @property
@@ -129,7 +132,7 @@ class StageContext:
     def save(self, name: str, value: Any) -> Path:
         kind = self._kind(name, "outputs")
         if kind.save is None:
-            raise PipelineError(f"artifact '{name}' is a file: write it at ctx.path('{name}')")
+            raise PipelineError(f"artifact '{name}' is written by the stage itself: write it at ctx.path('{name}')")
         path = self.stage_dir / f"{name}{kind.suffix}"
         write_atomic(path, lambda tmp: kind.save(value, tmp))
         self.written[name] = path

@@ -63,3 +63,64 @@ def render_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, values: np.
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def plot_field_slices(path: Path, field, resolution: int = 160, extent: float = 0.6) -> Path:
+    """SDF, MF and Q-MDF on the planes z = 0 and y = 0 (like the paper's Fig. 3 and 6), zero set in black,
+    the eps = 0.005 level of Q-MDF inside the shape in red."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.linspace(-extent, extent, resolution)
+    a, b = np.meshgrid(t, t, indexing="xy")
+    fig, axes = plt.subplots(2, 3, figsize=(13, 8.5))
+    for row, (plane, labels) in enumerate((("z", ("x", "y")), ("y", ("x", "z")))):
+        pts = np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)]) if plane == "z" else \
+            np.column_stack([a.ravel(), np.zeros(a.size), b.ravel()])
+        vals = field.evaluate(pts)
+        sdf = vals["sdf"].reshape(a.shape)
+        for col, (name, cmap) in enumerate((("sdf", "RdBu_r"), ("mf", "viridis"), ("q", "magma"))):
+            v = vals[name].reshape(a.shape)
+            ax = axes[row, col]
+            if name == "sdf":
+                lim = float(np.abs(v).max())
+                im = ax.imshow(v, origin="lower", extent=(-extent, extent, -extent, extent), cmap=cmap, vmin=-lim, vmax=lim)
+            else:
+                shown = np.where(sdf < 0, v, np.nan)  # the inner fields are what the method uses
+                im = ax.imshow(shown, origin="lower", extent=(-extent, extent, -extent, extent), cmap=cmap)
+            ax.contour(t, t, sdf, levels=[0.0], colors="k", linewidths=0.8)
+            if name == "q":
+                ax.contour(t, t, np.where(sdf < 0, v, np.nan), levels=[0.005], colors="r", linewidths=0.8)
+            ax.set_title(f"{name} on {plane} = 0")
+            ax.set_xlabel(labels[0]), ax.set_ylabel(labels[1])
+            fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_losses(path: Path, history: list[dict]) -> Path:
+    """Each loss term (unweighted) against the step, log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    if history:
+        steps = [h["step"] for h in history]
+        for key in history[0]:
+            if key.startswith("loss/"):
+                ys = np.array([h[key] for h in history])
+                ax.plot(steps, np.abs(ys) + 1e-12, label=key[5:] + (" (negated)" if ys.mean() < 0 else ""))
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("step")
+    ax.set_title("training losses (unweighted)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)

@@ -13,7 +13,8 @@ REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data"
 
 #: Overrides that keep every CLI run in the tests small and fast.
-FAST = ["input.shape_resolution=32", "sample.n_points=2000"]
+FAST = ["input.shape_resolution=32", "sample.n_points=2000", "train.steps=3", "train.surface_batch=256",
+        "train.volume_batch=256", "train.backbones.mlp.width=32", "train.picture=false"]
 
 
 def run_cli(args: list[str], cwd: Path, env: dict | None = None, module: str = "qmdf") -> subprocess.CompletedProcess:

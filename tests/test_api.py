@@ -48,7 +48,7 @@ def test_medial_axis_says_which_stages_are_missing(tmp_path):
 
     if "export" in STAGES:
         pytest.skip("the full pipeline exists; tests of the MAT itself live with the extraction stages")
-    with pytest.raises(PipelineError, match="made no medial axis \\(stages not available in this version: train"):
+    with pytest.raises(PipelineError, match="made no medial axis \\(stages not available in this version: cover"):
         qmdf.medial_axis(None, overrides(tmp_path), run_dir=tmp_path / "m")
 
 

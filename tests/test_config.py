@@ -34,7 +34,7 @@ def test_every_problem_is_listed_by_key_path(compose_cfg):
         "sample.degradations.noize", "sample.n_points", "seed",
     ])
     text = "\n".join(map(str, problems))
-    assert "did you mean 'noise'" in text and "did you mean 'train'" not in text  # 'train' is not registered
+    assert "did you mean 'noise'" in text and "did you mean 'train'" in text
     assert "must be >= 10, got -5" in text
 
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 import sys
 
 from qmdf.config import BUILTIN_STAGES
-from qmdf.registry import ALL, STAGES, load_all
+from qmdf.registry import STAGES, all_registries, load_all
 
 
 def listing() -> str:
     load_all()
     lines = []
-    for reg in ALL:
+    for reg in all_registries():
         lines.append(f"{reg.kind}s (entry-point group '{reg.group}'):")
         for e in reg.entries():
             io = ""

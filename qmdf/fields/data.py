@@ -1,0 +1,44 @@
+"""Training samples: batches of input points (the paper's 4096) plus volume samples, drawn per step from a
+generator seeded by (seed, step), so a resumed run draws exactly what an uninterrupted one would."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+
+def local_spacing(points: np.ndarray, k: int = 50) -> np.ndarray:
+    """Distance to the k-th neighbour (IGR's per-point Gaussian scale), clipped to a sane range."""
+    from scipy.spatial import cKDTree
+
+    k = int(min(k, len(points) - 1))
+    d, _ = cKDTree(points).query(points, k=k + 1)
+    return np.clip(d[:, -1], 2e-3, 0.1)
+
+
+class StepBatches(Dataset):
+    """Item i is the batch of step i: (surface points, volume points)."""
+
+    def __init__(self, points: np.ndarray, steps: int, surface_batch: int, volume_batch: int,
+                 uniform_fraction: float, seed: int, box: float = 0.6):
+        self.points = torch.as_tensor(points, dtype=torch.float32)
+        self.sigma = torch.as_tensor(local_spacing(points), dtype=torch.float32)
+        self.steps, self.bs, self.bv = steps, surface_batch, volume_batch
+        self.n_uniform = int(round(volume_batch * uniform_fraction))
+        self.seed, self.box = seed, box
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __getitem__(self, step: int):
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
+        n = len(self.points)
+        xs = self.points[torch.randint(n, (self.bs,), generator=g)]
+        near_idx = torch.randint(n, (self.bv - self.n_uniform,), generator=g)
+        near = self.points[near_idx] + torch.randn(len(near_idx), 3, generator=g) * self.sigma[near_idx, None]
+        uniform = (torch.rand(self.n_uniform, 3, generator=g) * 2 - 1) * self.box
+        return xs, torch.cat([near, uniform])
+
+
+def loader(ds: StepBatches) -> DataLoader:
+    return DataLoader(ds, batch_size=None, shuffle=False, num_workers=0)

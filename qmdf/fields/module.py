@@ -1,0 +1,68 @@
+"""The LightningModule: one optimisation step of the joint SDF + medial field."""
+from __future__ import annotations
+
+import math
+
+import lightning as L
+import torch
+
+from qmdf import schema
+from qmdf.fields.losses import LOSSES, Terms
+from qmdf.fields.network import MedialFieldNet
+
+
+class Diverged(RuntimeError):
+    """The loss became NaN or infinite."""
+
+
+class FieldModule(L.LightningModule):
+    def __init__(self, backbone: str, backbone_params: dict, losses: dict, medial_field: bool, lr: float,
+                 lr_final: float, steps: int):
+        super().__init__()
+        entry = __import__("qmdf.fields.backbones", fromlist=["BACKBONES"]).BACKBONES.get(backbone)
+        self.net = MedialFieldNet(backbone, schema.build(entry.config, backbone_params))
+        self.medial_field = medial_field
+        self.terms = []
+        for name, params in losses.items():
+            e = LOSSES.get(name)
+            if getattr(e.obj, "medial", False) and not medial_field:
+                continue
+            cfg = schema.build(e.config, params)
+            if cfg.weight > 0:
+                self.terms.append((name, e.obj, cfg))
+        self.lr, self.lr_final, self.steps = lr, lr_final, steps
+        self.history: list[dict] = []
+
+    def training_step(self, batch, batch_idx):
+        xs, xv = batch
+        x = torch.cat([xs, xv]).requires_grad_(True)
+        with torch.enable_grad():
+            sdf, mf = self.net(x)
+            grad = torch.autograd.grad(sdf.sum(), x, create_graph=True)[0]
+            grad_mf = torch.autograd.grad(mf.sum(), x, create_graph=True)[0] if self.medial_field else None
+        b = len(xs)
+        t = Terms(
+            xs=xs, xv=x[b:], sdf_s=sdf[:b], sdf_v=sdf[b:], grad_s=grad[:b], grad_v=grad[b:],
+            mf_v=mf[b:] if self.medial_field else None, grad_mf_v=grad_mf[b:] if self.medial_field else None,
+            sdf_fn=self.net.sdf_only, progress=self.global_step / max(1, self.steps - 1),
+        )
+        values = {name: fn(t, cfg) for name, fn, cfg in self.terms}
+        total = sum(cfg.weight * values[name] for name, _, cfg in self.terms)
+        if not torch.isfinite(total):
+            raise Diverged(f"the loss became {total.item()} at step {self.global_step}")
+        logs = {f"loss/{k}": v.detach() for k, v in values.items()}
+        logs["loss/total"] = total.detach()
+        self.log_dict(logs, on_step=True, on_epoch=False, prog_bar=False)
+        if self.global_step % 10 == 0:
+            self.history.append({"step": int(self.global_step), **{k: float(v) for k, v in logs.items()}})
+        return total
+
+    def configure_optimizers(self):
+        opt = torch.optim.Adam(self.net.parameters(), lr=self.lr)
+        final = self.lr_final / self.lr
+
+        def cosine(step: int) -> float:
+            t = min(step / max(1, self.steps), 1.0)
+            return final + (1 - final) * 0.5 * (1 + math.cos(math.pi * t))
+
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": torch.optim.lr_scheduler.LambdaLR(opt, cosine), "interval": "step"}}

@@ -1,0 +1,42 @@
+"""The joint network: a backbone trunk and three heads, sdf, mf_inner and mf_outer (paper Sec. 4.1.3)."""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from qmdf.fields.backbones import BACKBONES
+
+
+class MedialFieldNet(nn.Module):
+    """sdf(x) and the medial field, picked by the sign of sdf: mf = mf_inner inside, mf_outer outside."""
+
+    def __init__(self, backbone: str, backbone_cfg, head_width: int = 64, init_radius: float = 0.3):
+        super().__init__()
+        entry = BACKBONES.get(backbone)
+        self.trunk = entry.obj(backbone_cfg)
+        w = self.trunk.out_dim
+        self.sdf_head = nn.Linear(w, 1)
+        if getattr(backbone_cfg, "geometric_init", False):
+            # SAL's geometric initialisation: the trunk + sdf head start close to |x| - init_radius
+            nn.init.normal_(self.sdf_head.weight, math.sqrt(math.pi) / math.sqrt(w), 1e-4)
+            nn.init.constant_(self.sdf_head.bias, -init_radius)
+        self.mf_inner = self._head(w, head_width)
+        self.mf_outer = self._head(w, head_width)
+
+    @staticmethod
+    def _head(w: int, hw: int) -> nn.Module:
+        head = nn.Sequential(nn.Linear(w, hw), nn.Softplus(beta=100), nn.Linear(hw, hw), nn.Softplus(beta=100), nn.Linear(hw, 1))
+        nn.init.constant_(head[-1].bias, 0.1)  # a positive radius to start from
+        return head
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sdf, mf), each (N,)."""
+        h = self.trunk(x)
+        sdf = self.sdf_head(h).squeeze(-1)
+        mf = torch.where(sdf < 0, self.mf_inner(h).squeeze(-1), self.mf_outer(h).squeeze(-1))
+        return sdf, mf
+
+    def sdf_only(self, x: torch.Tensor) -> torch.Tensor:
+        return self.sdf_head(self.trunk(x)).squeeze(-1)
