@@ -134,5 +134,10 @@ def _load_field(path: Path) -> Any:
 
 #: The trained field (qmdf.fields.field.Field), written by the stage with Field.save at ctx.path(name)
 FIELD = ArtifactKind("field", ".pt", None, _load_field)
-#: A file the stage writes itself (a checkpoint, a .ma file): ``ctx.path(name)`` gives where.
+#: A file the stage writes itself (a checkpoint, an export): ``ctx.path(name)`` gives where.
 FILE = ArtifactKind("file", "")
+
+
+def file_kind(suffix: str) -> ArtifactKind:
+    """A file the stage writes itself, with its extension (``.ply``, ``.obj``...)."""
+    return ArtifactKind("file", suffix)

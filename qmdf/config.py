@@ -23,7 +23,9 @@ BUILTIN_STAGES = (
     "sample", "train", "feature_detect", "feature_retrain",
     "cover", "tetrahedralize", "contract", "export", "evaluate",
 )
-DEFAULT_PIPELINE = ["sample", "train", "cover", "tetrahedralize", "contract", "export", "evaluate"]
+# tetrahedralize is left out by default: measured on the torus, fTetWild took 160 s and the signed tet volume
+# is unbounded below (inverted tets), while the surface volume contracted in 4 s to 1e-8 from the axis.
+DEFAULT_PIPELINE = ["sample", "train", "cover", "contract", "export", "evaluate"]
 
 INPUT_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".xyz", ".npy")
 

@@ -22,7 +22,7 @@ from qmdf.geometry.normalize import Normalization
 
 def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray | None, samples: int = 100_000,
               resolution: int = 128, seed: int = 0, picture: Path | None = None, return_mesh: bool = False,
-              fold_deg: float = 150.0):
+              fold_deg: float = 150.0, recon_mesh=None):
     """Every metric of ``mat`` against the reference (a mesh, or points when ``ref_faces`` is None), both
     already in the same (unit-box) frame. With ``return_mesh``, also the meshed reconstruction."""
     from qmdf.geometry.envelope import EnvelopeUnion
@@ -34,16 +34,21 @@ def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray |
     t0 = time.perf_counter()
     union = EnvelopeUnion.from_mat(mat)
     dist, recon, _, _ = M.reconstruction_distances(union, ref_vertices, ref_faces, samples,
-                                                   np.random.default_rng(seed), resolution)
+                                                   np.random.default_rng(seed), resolution, recon_mesh=recon_mesh)
     # A single-layer MAT's boundary is its one-face edges; our closed double-covering membrane has none,
     # and its boundary is where it folds back on itself (dihedral angle near 2*pi, paper Sec. 4.3).
     boundary = M.single_face_edges(mat.faces)
     boundary_rule = "edges of one face"
     if len(mat.faces) and not len(boundary):
         boundary, boundary_rule = M.fold_edges(mat.vertices, mat.faces, fold_deg), f"fold edges (normals turn > {fold_deg} deg)"
+    closed = len(mat.faces) > 0 and M.is_closed_surface(mat.faces)
+    if closed:  # our membrane: it bounds a (flat) solid whose chi, V - E + F - C, is half its surface's
+        chi, chi_rule = M.euler_surface(len(np.unique(mat.faces)), mat.faces) // 2, "(V - E + F) / 2 of the closed membrane = chi of the solid it bounds"
+    else:
+        chi, chi_rule = M.euler_medial_mesh(len(mat.vertices), mat.edges, mat.faces), "V - E + F of the medial mesh"
     out = {
         "chamfer": dist["chamfer"], "hausdorff": dist["hausdorff"],
-        "chi": M.euler_medial_mesh(len(mat.vertices), mat.edges, mat.faces),
+        "chi": chi, "chi_rule": chi_rule,
         "boundary_smoothness": M.boundary_smoothness(mat.vertices, boundary) if len(boundary) else None,
         "boundary_rule": boundary_rule, "boundary_edges": int(len(boundary)),
         "vertices": int(len(mat.vertices)), "edges": int(len(M.unique_edges(mat.faces)) if len(mat.faces) else 0),

@@ -159,6 +159,7 @@ class Pipeline:
             "stage": step.name,
             "class": f"{type(st).__module__}.{type(st).__qualname__}",
             "version": st.version,
+            "qmdf": __version__,  # an upgrade never serves results of older code
             "config": _section(self.cfg, step.name),
             "deps": {k: _section(self.cfg, k) for k in st.config_deps},
             "inputs": {k: v.digest for k, v in sorted(inputs.items())},

@@ -163,6 +163,11 @@ _BUILTIN_MODULES = (
     "qmdf.fields.losses",
     "qmdf.stages.sample",
     "qmdf.stages.train",
+    "qmdf.stages.analytic_field",
+    "qmdf.stages.cover",
+    "qmdf.stages.tetrahedralize",
+    "qmdf.stages.contract",
+    "qmdf.stages.export",
     "qmdf.stages.evaluate",
 )
 

@@ -43,13 +43,19 @@ def test_errors_are_the_same_as_the_cli(tmp_path):
         qmdf.run({"points": 1}, overrides(tmp_path), run_dir=tmp_path / "e")
 
 
-def test_medial_axis_says_which_stages_are_missing(tmp_path):
-    from qmdf.registry import STAGES
+def test_medial_axis_returns_the_mat_and_metrics(tmp_path):
+    chain = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]",
+             "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
+             "evaluate.samples=2000", "evaluate.resolution=48", "evaluate.picture=false"]
+    mat = qmdf.medial_axis(None, overrides(tmp_path, *chain), run_dir=tmp_path / "m")
+    assert mat.vertices.shape[1] == 3 and len(mat.radii) == len(mat.vertices) and len(mat.faces) > 0
+    assert mat.metrics["chi"] == 0 and mat.metrics["chamfer"] < 1e-3
+    assert np.allclose(mat.in_input_units().radii, mat.radii / mat.normalization.scale)
 
-    if "export" in STAGES:
-        pytest.skip("the full pipeline exists; tests of the MAT itself live with the extraction stages")
-    with pytest.raises(PipelineError, match="made no medial axis \\(stages not available in this version: cover"):
-        qmdf.medial_axis(None, overrides(tmp_path), run_dir=tmp_path / "m")
+
+def test_medial_axis_says_when_the_run_made_none(tmp_path):
+    with pytest.raises(PipelineError, match="made no medial axis \\(stages not run: train"):
+        qmdf.medial_axis(None, overrides(tmp_path, "pipeline.stop_after=sample"), run_dir=tmp_path / "n")
 
 
 def test_api_inside_an_initialised_hydra_keeps_the_callers_state(tmp_path):

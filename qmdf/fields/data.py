@@ -20,17 +20,19 @@ class StepBatches(Dataset):
     """Item i is the batch of step i: (surface points, volume points)."""
 
     def __init__(self, points: np.ndarray, steps: int, surface_batch: int, volume_batch: int,
-                 uniform_fraction: float, seed: int, box: float = 0.6):
+                 uniform_fraction: float, seed: int, box: float = 0.6, start: int = 0):
         self.points = torch.as_tensor(points, dtype=torch.float32)
         self.sigma = torch.as_tensor(local_spacing(points), dtype=torch.float32)
         self.steps, self.bs, self.bv = steps, surface_batch, volume_batch
         self.n_uniform = int(round(volume_batch * uniform_fraction))
         self.seed, self.box = seed, box
+        self.start = start  # a resumed run continues with the batches of the steps it has not done
 
     def __len__(self) -> int:
-        return self.steps
+        return self.steps - self.start
 
-    def __getitem__(self, step: int):
+    def __getitem__(self, index: int):
+        step = self.start + index
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
         n = len(self.points)
         xs = self.points[torch.randint(n, (self.bs,), generator=g)]

@@ -15,6 +15,7 @@ import torch
 from qmdf.geometry.normalize import Normalization
 
 FORMAT = "qmdf-field/1"
+ANALYTIC_FORMAT = "qmdf-analytic-field/1"
 
 
 class FieldLike(Protocol):
@@ -69,7 +70,7 @@ class Field:
                     "normalization": self.normalization.to_dict()}, path)
 
     @classmethod
-    def load(cls, path: Path, device: str | None = None) -> "Field":
+    def load(cls, path: Path, device: str | None = None) -> "FieldLike":
         from qmdf import schema
         from qmdf.errors import QmdfError
         from qmdf.fields.backbones import BACKBONES
@@ -78,6 +79,10 @@ class Field:
 
         load_all()
         data = torch.load(path, map_location="cpu", weights_only=True)
+        if data.get("format") == ANALYTIC_FORMAT:
+            from qmdf.fields.analytic import ANALYTIC
+
+            return ANALYTIC[data["shape"]]()
         if data.get("format") != FORMAT:
             raise QmdfError(f"{path} is not a qmdf field (format {data.get('format')!r}, expected {FORMAT})")
         entry = BACKBONES.get(data["backbone"])

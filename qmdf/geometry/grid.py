@@ -32,8 +32,8 @@ class GridLevelSet:
         if not (v.min() < 0 < v.max()):
             return None
         verts, faces, _, _ = marching_cubes(v, level=0.0, spacing=tuple(self.spacing))
-        mesh = trimesh.Trimesh(verts + self.lo, faces[:, ::-1], process=True)
-        if mesh.is_volume and mesh.volume < 0:
+        mesh = trimesh.Trimesh(verts + self.lo, faces, process=True)
+        if mesh.is_watertight and mesh.volume < 0:  # outward normals: the negative region is the solid
             mesh.invert()
         return mesh
 

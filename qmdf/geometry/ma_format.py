@@ -69,3 +69,23 @@ def read_ma(path: Path) -> MedialMesh:
         if idx.size and (idx.min() < 0 or idx.max() >= nv):
             raise InputError(f"{path}: a {name} refers to a vertex outside 0..{nv - 1}")
     return mat
+
+
+def write_ply_with_radius(path: Path, mat: MedialMesh) -> None:
+    """Binary PLY: vertices with a float ``radius`` property, triangle faces (MeshLab, Blender, trimesh read it)."""
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(mat.vertices)}\nproperty float x\nproperty float y\nproperty float z\nproperty float radius\n"
+        f"element face {len(mat.faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode()
+    verts = np.hstack([mat.vertices, mat.radii[:, None]]).astype("<f4")
+    faces = np.empty(len(mat.faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    faces["n"], faces["idx"] = 3, mat.faces
+    Path(path).write_bytes(header + verts.tobytes() + faces.tobytes())
+
+
+def write_obj(path: Path, mat: MedialMesh) -> None:
+    """OBJ of the medial mesh (radii as a comment per vertex: OBJ has no vertex attributes)."""
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}  # r {r:.9g}" for (x, y, z), r in zip(mat.vertices, mat.radii)]
+    lines += [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in mat.faces]
+    Path(path).write_text("\n".join(lines) + "\n")

@@ -97,6 +97,14 @@ def euler_surface(n_vertices: int, faces: np.ndarray) -> int:
     return int(n_vertices - len(unique_edges(faces)) + len(faces))
 
 
+def is_closed_surface(faces: np.ndarray) -> bool:
+    """Every edge in exactly two faces."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool(len(counts)) and bool(np.all(counts == 2))
+
+
 def euler_medial_mesh(n_vertices: int, edges: np.ndarray, faces: np.ndarray) -> int:
     """V - E + F of a single-layer medial mesh, its lone edges and its faces' edges counted once."""
     e = np.concatenate([np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1), unique_edges(faces)])

@@ -24,8 +24,9 @@ class Evaluate(Stage):
 
     Config = EvaluateConfig
     inputs = {"mat": MAT}
-    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS}
-    outputs = {"metrics": JSON, "reconstruction": MESH}
+    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS, "reconstruction": MESH}
+    outputs = {"metrics": JSON}
+    optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
     version = "1"
 
     def run(self, ctx: StageContext) -> None:
@@ -38,8 +39,9 @@ class Evaluate(Stage):
         else:
             ref_v, ref_f = ctx.load("clean_points").points, None
         picture = ctx.stage_dir / "reconstruction.png" if ctx.cfg.picture else None
+        given = ctx.load("reconstruction") if ctx.has("reconstruction") else None
         metrics, recon = score_mat(mat, ref_v, ref_f, ctx.cfg.samples, ctx.cfg.resolution, ctx.seed, picture,
-                                   return_mesh=True, fold_deg=ctx.cfg.fold_deg)
+                                   return_mesh=True, fold_deg=ctx.cfg.fold_deg, recon_mesh=given)
         metrics["reference"] = "input surface" if ctx.has("surface") else "input points"
         if ctx.has("contracted_tets"):  # the paper's chi: V - E + F - C of the contracted covering
             from qmdf.geometry.metrics import euler_tetrahedral
@@ -48,10 +50,9 @@ class Evaluate(Stage):
             metrics["chi_membrane"] = metrics["chi"]
             metrics["chi"] = euler_tetrahedral(len(verts), tets)
             metrics["chi_rule"] = "V - E + F - C of the contracted tetrahedral covering"
-        else:
-            metrics["chi_rule"] = "V - E + F of the medial mesh"
         ctx.save("metrics", metrics)
-        ctx.save("reconstruction", recon)
+        if given is None:
+            ctx.save("reconstruction", recon)
         ctx.log.info(
             "CD %.3e  HD %.3e  chi %d  V %d  F %d  (%s)", metrics["chamfer"], metrics["hausdorff"], metrics["chi"],
             metrics["vertices"], metrics["faces"], metrics["reference"],

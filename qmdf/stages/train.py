@@ -76,6 +76,7 @@ class Train(Stage):
     version = "1"
 
     def run(self, ctx: StageContext) -> None:
+        import gc
         import warnings
 
         import lightning as L
@@ -92,9 +93,11 @@ class Train(Stage):
         points = ctx.load("points").points
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         module = FieldModule(cfg.backbone, params, cfg.losses, cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps)
-        data = StepBatches(points, cfg.steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed)
         work = ctx.work_dir
         last = work / "last.ckpt"
+        resume = str(last) if cfg.resume and last.exists() else None
+        done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
+        data = StepBatches(points, cfg.steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed, start=done)
         checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
                                                          every_n_train_steps=cfg.checkpoint_every)
         show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
@@ -103,25 +106,31 @@ class Train(Stage):
             callbacks=[checkpoint], enable_progress_bar=show_bar, enable_model_summary=False,
             log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work),
         )
-        resume = str(last) if cfg.resume and last.exists() else None
         if resume:
-            ctx.log.info("resuming from %s", last)
+            ctx.log.info("resuming from %s (step %d of %d)", last, done, cfg.steps)
         try:
             trainer.fit(module, train_dataloaders=loader(data), ckpt_path=resume)
         except Diverged as exc:
             keep = f"; the last good checkpoint is {last}" if last.exists() else ""
             raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
         finally:
+            for logger in trainer.loggers:
+                logger.finalize("success")
             if cfg.logger == "wandb":
                 import wandb
 
                 wandb.finish()  # one wandb run per job, also in a multirun
+            # Nothing of Lightning may outlive the stage: its loggers would flush into this scratch folder
+            # after the pipeline moved it into place.
+            device = str(trainer.strategy.root_device)
+            del trainer
+            gc.collect()
         field = Field(module.net.cpu(), ctx.load("normalization"),
                       {"backbone": cfg.backbone, "backbone_params": params}, device="cpu")
         field.save(ctx.path("field"))
         final = module.history[-1] if module.history else {}
         ctx.save("training", {"steps": cfg.steps, "final_losses": final, "history": module.history,
-                              "device": str(trainer.strategy.root_device), "torch_threads": torch.get_num_threads()})
+                              "device": device, "torch_threads": torch.get_num_threads()})
         if cfg.picture:
             from qmdf.viz import plot_field_slices, plot_losses
 

@@ -1,0 +1,58 @@
+"""``export``: the medial membrane as a MAT (radius per vertex from the SDF), in the unit box and in the
+input's own units: ``.ma`` (Q-MAT / MATTopo format), PLY with a ``radius`` vertex property, OBJ; and the
+surface the MAT reconstructs (union of its primitives' envelopes), meshed."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from qmdf.artifacts import FIELD, MAT, MESH, NORMALIZATION, file_kind
+from qmdf.schema import param
+from qmdf.stage import Stage, StageContext, register_stage
+
+
+@dataclass
+class ExportConfig:
+    reconstruction_resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction; 0 skips it")
+    picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
+
+
+@register_stage("export")
+class Export(Stage):
+    """Write the MAT (.ma, .ply with radius, .obj) in both frames, and its reconstructed surface."""
+
+    Config = ExportConfig
+    inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
+    optional_inputs = {"covering": MESH}
+    outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
+               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"), "reconstruction": MESH}
+
+    def run(self, ctx: StageContext) -> None:
+        from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
+        from qmdf.geometry.ma_format import MedialMesh, write_ma, write_obj, write_ply_with_radius
+
+        membrane = ctx.load("membrane")
+        field = ctx.load("field")
+        norm = ctx.load("normalization")
+        v = np.asarray(membrane.vertices, np.float64)
+        radii = np.abs(field.evaluate(v)["sdf"]).astype(np.float64)
+        mat = MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
+        ctx.save("mat", mat)
+        in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
+        write_ma(ctx.path("mat_input_units"), in_units)
+        write_ply_with_radius(ctx.path("mat_ply"), mat)
+        write_ply_with_radius(ctx.path("mat_ply_input_units"), in_units)
+        write_obj(ctx.path("mat_obj"), mat)
+        recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), ctx.cfg.reconstruction_resolution)
+        ctx.save("reconstruction", recon)
+        if ctx.cfg.picture:
+            from qmdf.viz import render_mesh
+
+            render_mesh(ctx.stage_dir / "mat.png", v, mat.faces, radii, title="medial mesh", label="radius (unit box)")
+            if ctx.has("covering"):
+                cov = ctx.load("covering")
+                render_mesh(ctx.stage_dir / "covering_before.png", cov.vertices, cov.faces, title="eps-covering")
+                render_mesh(ctx.stage_dir / "covering_after.png", v, mat.faces, title="after contraction")
+        ctx.log.info("MAT: %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
+                     len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))

@@ -1,0 +1,72 @@
+"""cover -> contract -> export -> evaluate on exact fields with known medial axes (no training involved)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from qmdf.fields.analytic import BoxField, TorusField, box_medial_points
+from qmdf.pipeline import Pipeline
+
+CHAIN = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]",
+         "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
+         "evaluate.samples=3000", "evaluate.resolution=48", "evaluate.picture=false"]
+
+
+def test_analytic_fields_are_exact():
+    rng = np.random.default_rng(0)
+    t = TorusField()
+    p = rng.uniform(-0.5, 0.5, (20000, 3))
+    p = p[t.sdf(p) < 0]
+    assert np.abs(t.evaluate(p)["q"] - t.axis_distance(p)).max() < 1e-12  # q is the distance to the circle
+    b = BoxField()
+    m = box_medial_points(b.half, 2000)
+    assert np.abs(b.evaluate(m)["q"]).max() < 1e-12  # q vanishes on the box's medial axis
+    inside = rng.uniform(-1, 1, (5000, 3)) * b.half
+    assert np.all(b.evaluate(inside)["q"] >= -1e-12)
+
+
+def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
+    res = Pipeline(compose_cfg(*CHAIN), tmp_path / "run", tmp_path).run()
+    stats = res.load("covering_stats")
+    assert stats["watertight"] and stats["components"] == 1 and stats["genus"] == [1]
+    assert stats["evaluated_nodes"] < 0.2 * stats["grid_nodes"]  # only the narrow band was evaluated
+    contraction = res.load("contraction")
+    assert contraction["final_volume"] < 0.01 * contraction["initial_volume"]
+    membrane = res.load("membrane")
+    d = TorusField().axis_distance(np.asarray(membrane.vertices))
+    assert d.mean() < 1e-4 and np.percentile(d, 95) < 1e-3
+    mat = res.load("mat")
+    assert np.allclose(mat.radii, 0.15, atol=1e-3)  # radius from the SDF: the tube radius
+    m = res.load("metrics")
+    assert m["chi"] == 0 and m["chamfer"] < 1e-3
+    run = res.run_dir / "04_export"
+    ply = trimesh.load(run / "mat_ply.ply", process=False)
+    assert np.allclose(ply.metadata["_ply_raw"]["vertex"]["data"]["radius"], mat.radii, atol=1e-6)
+    assert (run / "mat_input_units.ma").read_text().splitlines()[0] == f"{len(mat.vertices)} {len(mat.edges)} {len(mat.faces)}"
+
+
+def test_contract_refuses_tets_it_was_not_given(compose_cfg, tmp_path):
+    from qmdf.errors import QmdfError
+
+    with pytest.raises(QmdfError, match="needs the tetrahedralize stage"):
+        Pipeline(compose_cfg(*CHAIN, "contract.volume=tets"), tmp_path / "run", tmp_path).run()
+
+
+def test_cover_without_a_covering_says_so(compose_cfg, tmp_path):
+    from qmdf.errors import QmdfError
+
+    with pytest.raises(QmdfError, match="never drops below cover.eps"):
+        Pipeline(compose_cfg(*CHAIN, "cover.eps=0.0000001", "cover.resolution=32"), tmp_path / "run", tmp_path).run()
+
+
+def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path):
+    from qmdf.geometry.tets import boundary_faces, signed_volumes
+
+    cfg = compose_cfg("input.shape=torus", "input.shape_resolution=128", "pipeline.stages=[sample,analytic_field,cover,tetrahedralize]",
+                      "cover.resolution=64", "cover.eps=0.03", "tetrahedralize.edge_length_fac=0.1", "tetrahedralize.optimize=false")
+    res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
+    v, t = res.load("covering_tets")
+    vol = np.abs(signed_volumes(v, t)).sum()
+    assert vol == pytest.approx(res.load("covering_stats")["volume"], rel=0.05)
+    assert len(boundary_faces(t)) > 0
