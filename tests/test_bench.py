@@ -9,7 +9,7 @@ from mats import install_torus_mat_plugin
 
 def test_bench_models_on_one_procedural_model(cli):
     env = install_torus_mat_plugin(cli.cwd / "site", Path(__file__).parent)
-    proc = cli("models", "--only", "torus", "--data", str(cli.cwd / "no_data"), "--json", "rows.json",
+    proc = cli("models", "--reuse", "--only", "torus", "--data", str(cli.cwd / "no_data"), "--json", "rows.json",
                "input.shape_resolution=256", "sample.n_points=2000", "pipeline.stages=[sample,torus_mat,evaluate]",
                "evaluate.samples=2000", "evaluate.resolution=40", env=env, module="qmdf.bench")
     assert proc.returncode == 0, proc.stderr
@@ -19,3 +19,13 @@ def test_bench_models_on_one_procedural_model(cli):
     assert row["cd"] < 2e-4 and row["chi"] == row["expected_chi"] == 0
     assert row["peak_mb"] > 50 and set(row["stage_s"]) == {"sample", "torus_mat", "evaluate"}
     assert "torus" in proc.stdout and "CD / HD: exact point-to-surface distances" in proc.stdout
+
+
+def test_bench_extraction_on_the_torus(cli):
+    proc = cli("extraction", "--shapes", "torus", "--json", "rows.json", "cover.resolution=96", "cover.eps=0.015",
+               "contract.iterations=200", "export.reconstruction_resolution=32", "export.picture=false",
+               "evaluate.samples=1000", "evaluate.resolution=32", "evaluate.picture=false", module="qmdf.bench")
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads((cli.cwd / "rows.json").read_text())
+    assert row["axis_mean"] < 1e-4 and abs(row["volume_ratio"]) < 0.01 and row["chi"] == row["expected_chi"] == 0
+    assert row["contract_s"] > 0  # computed, not served from a cache

@@ -5,6 +5,7 @@ import sys
 
 SUITES = {
     "models": "qmdf.bench.models",
+    "extraction": "qmdf.bench.extraction",
 }
 
 

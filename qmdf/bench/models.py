@@ -135,7 +135,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--out", type=Path, default=Path("runs/bench/models"), help="run directories")
     ap.add_argument("--timeout", type=int, default=3600, help="seconds per model")
     ap.add_argument("overrides", nargs="*", help="config overrides for every run (e.g. evaluate.samples=20000)")
+    ap.add_argument("--reuse", action="store_true", help="reuse cached stage results (timings then mean nothing)")
     args = ap.parse_args(argv)
+    if not args.reuse:  # a benchmark times real work
+        args.overrides = ["cache.enabled=false", *args.overrides]
     models = discover(args.data)
     if not (args.data / "MANIFEST.tsv").exists():
         print(f"note: {args.data} not found; running the procedural shapes only", file=sys.stderr)
