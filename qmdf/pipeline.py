@@ -118,9 +118,9 @@ class RunResult:
         return self.artifacts[name].path
 
     def load(self, name: str) -> Any:
-        rec = self.artifacts.get(name)
+        rec = self.artifacts[name] if name in self.artifacts else None
         if rec is None:
-            self.path(name)
+            raise PipelineError(f"this run made no artifact '{name}' (it made: {', '.join(self.artifacts)})")
         producer = STAGES.get(rec.producer).obj
         kind = {**producer.outputs, **producer.optional_outputs}[name]
         return kind.load(rec.path) if kind.load else rec.path
