@@ -60,8 +60,12 @@ def test_cover_without_a_covering_says_so(compose_cfg, tmp_path):
         Pipeline(compose_cfg(*CHAIN, "cover.eps=0.0000001", "cover.resolution=32"), tmp_path / "run", tmp_path).run()
 
 
-def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path):
+def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path, monkeypatch):
     from qmdf.geometry.tets import boundary_faces, signed_volumes
+
+    caller = tmp_path / "caller"  # fTetWild writes into its working directory: never the caller's
+    caller.mkdir()
+    monkeypatch.chdir(caller)
 
     cfg = compose_cfg("input.shape=torus", "input.shape_resolution=128", "pipeline.stages=[sample,analytic_field,cover,tetrahedralize]",
                       "cover.resolution=64", "cover.eps=0.03", "tetrahedralize.edge_length_fac=0.1", "tetrahedralize.optimize=false")
@@ -70,3 +74,4 @@ def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path):
     vol = np.abs(signed_volumes(v, t)).sum()
     assert vol == pytest.approx(res.load("covering_stats")["volume"], rel=0.05)
     assert len(boundary_faces(t)) > 0
+    assert list(caller.iterdir()) == []

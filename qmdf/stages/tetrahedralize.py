@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from qmdf.artifacts import MESH, TETS
 from qmdf.errors import QmdfError
 from qmdf.schema import param
@@ -29,16 +27,16 @@ class Tetrahedralize(Stage):
     outputs = {"covering_tets": TETS}
 
     def run(self, ctx: StageContext) -> None:
-        import pytetwild
+        from qmdf.geometry.tetwild_worker import tetrahedralize
 
         cfg: TetrahedralizeConfig = ctx.cfg
         mesh = ctx.load("covering")
         if not mesh.is_watertight:
             raise QmdfError("the covering is not closed (watertight), so it cannot be tetrahedralised; "
                             "raise cover.resolution or cover.eps")
-        v, t = pytetwild.tetrahedralize(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32),
-                                        edge_length_fac=cfg.edge_length_fac, epsilon=cfg.epsilon,
-                                        optimize=cfg.optimize, stop_energy=cfg.stop_energy, quiet=True)
+        # fTetWild writes a file into the working directory: it runs in a child process inside work_dir
+        v, t = tetrahedralize(mesh.vertices, mesh.faces, ctx.work_dir, edge_length_fac=cfg.edge_length_fac,
+                              epsilon=cfg.epsilon, optimize=cfg.optimize, stop_energy=cfg.stop_energy)
         if len(t) == 0:
             raise QmdfError("fTetWild produced no tetrahedra for the covering")
         ctx.save("covering_tets", (v, t))
