@@ -51,7 +51,7 @@ def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray |
         "chi": chi, "chi_rule": chi_rule,
         "boundary_smoothness": M.boundary_smoothness(mat.vertices, boundary) if len(boundary) else None,
         "boundary_rule": boundary_rule, "boundary_edges": int(len(boundary)),
-        "vertices": int(len(mat.vertices)), "edges": int(len(M.unique_edges(mat.faces)) if len(mat.faces) else 0),
+        "vertices": int(len(mat.vertices)), "edges": int(len(M.medial_edges(mat.edges, mat.faces))),
         "faces": int(len(mat.faces)),
         "radius": M.radius_stats(mat.radii),
         "distances": {k: v for k, v in dist.items() if k not in ("chamfer", "hausdorff", "definition")},

@@ -112,15 +112,16 @@ class RunResult:
     def complete(self) -> bool:
         return self.manifest["status"] == "complete"
 
-    def path(self, name: str) -> Path:
+    def _record(self, name: str) -> ArtifactRecord:
         if name not in self.artifacts:
             raise PipelineError(f"this run made no artifact '{name}' (it made: {', '.join(self.artifacts)})")
-        return self.artifacts[name].path
+        return self.artifacts[name]
+
+    def path(self, name: str) -> Path:
+        return self._record(name).path
 
     def load(self, name: str) -> Any:
-        rec = self.artifacts[name] if name in self.artifacts else None
-        if rec is None:
-            raise PipelineError(f"this run made no artifact '{name}' (it made: {', '.join(self.artifacts)})")
+        rec = self._record(name)
         producer = STAGES.get(rec.producer).obj
         kind = {**producer.outputs, **producer.optional_outputs}[name]
         return kind.load(rec.path) if kind.load else rec.path

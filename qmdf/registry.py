@@ -11,7 +11,6 @@ it never hides behind a generic "not found".
 """
 from __future__ import annotations
 
-import contextlib
 import contextvars
 import difflib
 import importlib.metadata as metadata
@@ -138,16 +137,6 @@ class Registry:
 
     def broken(self) -> list[BrokenPlugin]:
         return sorted(self._broken.values(), key=lambda b: b.name)
-
-
-@contextlib.contextmanager
-def origin(where: str) -> Iterator[None]:
-    """Attribute registrations made inside the block to ``where`` (used when loading plugin modules)."""
-    token = _origin.set(where)
-    try:
-        yield
-    finally:
-        _origin.reset(token)
 
 
 RESERVED = frozenset({"seed", "input", "pipeline", "cache", "hydra", "run"})

@@ -133,3 +133,9 @@ def test_evaluate_stage_prefers_the_tetrahedral_chi(compose_cfg, tmp_path):
         STAGES.remove("ring_of_tets")
     m = res.load("metrics")
     assert m["chi"] == 0 and m["chi_rule"].startswith("V - E + F - C") and m["chi_membrane"] == 0
+
+
+def test_edge_count_includes_lone_edges():
+    mesh = get_shape("torus").mesh(32)
+    m = score_mat(torus_mat(40), mesh.vertices, mesh.faces, samples=300, resolution=24)
+    assert m["edges"] == 40 and m["faces"] == 0 and m["chi"] == 0  # a loop of 40 cones

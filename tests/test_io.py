@@ -1,8 +1,6 @@
 """Reading inputs: each supported format, and each way a user's file can be unusable (one clear line)."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 import trimesh

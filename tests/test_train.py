@@ -2,8 +2,6 @@
 resumes, it stops cleanly on divergence, and the medial field can be switched off (the paper's ablation)."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 import torch

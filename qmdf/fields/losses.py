@@ -44,11 +44,6 @@ def register_loss(name: str, config: type, medial: bool = False):
 
 
 @dataclass
-class Weight:
-    weight: float = param(1.0, ge=0)
-
-
-@dataclass
 class SurfaceConfig:
     weight: float = param(3000.0, ge=0, doc="mean |sdf| on the input points (SIREN/DiGS: 3e3)")
 

@@ -32,11 +32,6 @@ class InputGeometry:
     def is_mesh(self) -> bool:
         return self.faces is not None
 
-    def mesh(self):
-        import trimesh
-
-        return trimesh.Trimesh(self.points.points, self.faces, process=False)
-
 
 @dataclass(frozen=True)
 class Limits:

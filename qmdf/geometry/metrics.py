@@ -105,11 +105,15 @@ def is_closed_surface(faces: np.ndarray) -> bool:
     return bool(len(counts)) and bool(np.all(counts == 2))
 
 
-def euler_medial_mesh(n_vertices: int, edges: np.ndarray, faces: np.ndarray) -> int:
-    """V - E + F of a single-layer medial mesh, its lone edges and its faces' edges counted once."""
+def medial_edges(edges: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Every edge of a medial mesh once: its lone edges and its faces' edges."""
     e = np.concatenate([np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1), unique_edges(faces)])
-    e = e[e[:, 0] != e[:, 1]]
-    return int(n_vertices - len(np.unique(e, axis=0)) + len(faces))
+    return np.unique(e[e[:, 0] != e[:, 1]], axis=0)
+
+
+def euler_medial_mesh(n_vertices: int, edges: np.ndarray, faces: np.ndarray) -> int:
+    """V - E + F of a single-layer medial mesh."""
+    return int(n_vertices - len(medial_edges(edges, faces)) + len(np.asarray(faces).reshape(-1, 3)))
 
 
 def euler_tetrahedral(n_vertices: int, tets: np.ndarray) -> int:

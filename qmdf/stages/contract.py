@@ -54,7 +54,7 @@ def area_weights(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.sqrt(a.max()) / np.sqrt(a)
 
 
-def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | None, cfg: ContractConfig, log=None):
+def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | None, cfg: ContractConfig):
     """The contracted vertices and the per-iteration log of the energy terms and the volume."""
     import math
 
@@ -139,7 +139,7 @@ class Contract(Stage):
         else:
             mesh = ctx.load("covering")
             v, t, faces = np.asarray(mesh.vertices), None, np.asarray(mesh.faces)
-        x, history, vol0 = contract(field, v, faces, t, cfg, ctx.log)
+        x, history, vol0 = contract(field, v, faces, t, cfg)
         used = np.unique(faces)
         remap = np.full(len(x), -1)
         remap[used] = np.arange(len(used))
