@@ -29,3 +29,19 @@ def test_bench_extraction_on_the_torus(cli):
     (row,) = json.loads((cli.cwd / "rows.json").read_text())
     assert row["axis_mean"] < 1e-4 and abs(row["volume_ratio"]) < 0.01 and row["chi"] == row["expected_chi"] == 0
     assert row["contract_s"] > 0  # computed, not served from a cache
+
+
+def test_field_scores_of_the_exact_field_are_zero():
+    """The field bench's scorer on the exact ellipsoid field: descending -grad q lands on the medial disc."""
+    import numpy as np
+
+    from qmdf.bench.field import descend_q, inside_points
+    from qmdf.fields.analytic import EllipsoidField
+
+    f = EllipsoidField()
+    x = inside_points("ellipsoid", 300, seed=3)
+    assert np.all(f.sdf(x) < 0)
+    moved = descend_q(f, x, iterations=200)
+    d = f.axis_distance(moved)
+    assert np.median(d) < 1e-4 and d.mean() < 2e-3
+    assert d.mean() < 0.05 * f.axis_distance(x).mean()

@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from qmdf.fields.analytic import BoxField, TorusField, box_medial_points
+from qmdf.fields.analytic import BoxField, EllipsoidField, TorusField, box_medial_points
+from qmdf.geometry import ellipsoid
+from qmdf.geometry.normalize import Normalization
 from qmdf.pipeline import Pipeline
 
 CHAIN = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]",
@@ -24,6 +26,51 @@ def test_analytic_fields_are_exact():
     assert np.abs(b.evaluate(m)["q"]).max() < 1e-12  # q vanishes on the box's medial axis
     inside = rng.uniform(-1, 1, (5000, 3)) * b.half
     assert np.all(b.evaluate(inside)["q"] >= -1e-12)
+
+
+
+def test_ellipsoid_distances_against_brute_force():
+    from scipy.optimize import minimize_scalar
+    from scipy.spatial import cKDTree
+
+    axes = np.array([0.5, 0.35, 0.25])
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-0.6, 0.6, (400, 3))
+    x, _ = ellipsoid.closest_point(p, axes)
+    assert np.abs(((x / axes) ** 2).sum(1) - 1).max() < 1e-12  # on the surface
+    normal = x / axes ** 2
+    cross = np.cross(p - x, normal)
+    assert np.abs(cross).max() < 1e-12  # p - x is along the normal: a stationary point of the distance
+    # ... and the global minimum: brute force over a fine (u, v) parametrisation, refined per point
+    u, v = np.meshgrid(np.linspace(0, np.pi, 400), np.linspace(0, 2 * np.pi, 800), indexing="ij")
+    s = np.stack([np.sin(u) * np.cos(v), np.sin(u) * np.sin(v), np.cos(u)], -1).reshape(-1, 3) * axes
+    brute = cKDTree(s).query(p)[0]
+    d = np.abs(ellipsoid.signed_distance(p, axes))
+    assert np.all(d <= brute + 1e-12) and np.abs(d - brute).max() < 2e-3
+    # the medial disc: q = mf - |sdf| is the distance along the normal ray to the disc, zero on it
+    f = EllipsoidField()
+    inside = p[f.sdf(p) < 0]
+    m = ellipsoid.medial_point(inside, axes)
+    assert np.abs(m[:, 2]).max() < 1e-15
+    assert np.allclose(-f.sdf(m), ellipsoid.medial_radius(m, axes), atol=1e-12)  # the maximal ball
+    assert np.allclose(f.evaluate(m)["q"], 0, atol=1e-12)
+    # distance to the disc against a 1-D search along its rim, for points beyond the rim
+    k, semi = ellipsoid.medial_disc(axes)
+    far = np.array([[0.6, 0.1, 0.05], [-0.2, 0.4, -0.1], [0.1, -0.5, 0.2]])
+    for q, dist in zip(far, f.axis_distance(far)):
+        best = minimize_scalar(lambda t: np.hypot(np.hypot(q[0] - semi[0] * np.cos(t), q[1] - semi[1] * np.sin(t)), q[2]),
+                               bounds=(np.arctan2(q[1] * semi[0], q[0] * semi[1]) - 0.5, np.arctan2(q[1] * semi[0], q[0] * semi[1]) + 0.5), method="bounded")
+        assert abs(best.fun - dist) < 1e-8
+
+
+def test_analytic_field_answers_in_the_unit_box_of_its_input():
+    norm = Normalization((0.1, -0.2, 0.05), 1.25)
+    f, exact = EllipsoidField(norm), EllipsoidField()
+    x = np.random.default_rng(2).uniform(-0.3, 0.3, (50, 3))
+    unit = norm.to_unit(x)
+    out = f.evaluate(unit, grad=True)
+    assert np.allclose(out["sdf"], exact.sdf(x) * 1.25, atol=1e-12)
+    assert np.allclose(out["sdf_grad"], exact.evaluate(x, grad=True)["sdf_grad"], atol=1e-6)
 
 
 def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):

@@ -106,3 +106,28 @@ def test_bad_train_settings_are_listed(compose_cfg):
     problems = validate(compose_cfg("train.backbone=hashgrid", "+train.losses.smooth.weight=1", "train.losses.surface.weight=-1"))
     keys = sorted(p.key for p in problems)
     assert keys == ["train.backbone", "train.losses.smooth", "train.losses.surface.weight"]
+
+
+def test_grid_backbone_is_twice_differentiable_and_smooth_across_cells():
+    from qmdf.fields.backbones import Grid, GridConfig
+
+    g = Grid(GridConfig(levels=3, base_resolution=4, finest_resolution=16, log2_table_size=8)).double()
+    with torch.no_grad():
+        g.table.normal_()
+    x = (torch.rand(6, 3, dtype=torch.float64) - 0.5).requires_grad_(True)
+    assert torch.autograd.gradcheck(g.encode, (x,)) and torch.autograd.gradgradcheck(g.encode, (x,))
+    # C1: the gradient is continuous across a cell face (linear blending would jump there)
+    face = -0.6 + 1.2 * 3 / 16  # a face of the finest level
+    pts = torch.tensor([[face - 1e-10, 0.013, -0.021], [face + 1e-10, 0.013, -0.021]], dtype=torch.float64, requires_grad=True)
+    jac = torch.stack([torch.autograd.grad(g.encode(pts)[:, k].sum(), pts)[0] for k in range(g.cfg.levels * g.cfg.features)])
+    assert torch.allclose(jac[:, 0], jac[:, 1], atol=1e-6) and jac.abs().max() > 1
+    # the dense coarse level and the hashed fine level both index inside their part of the table
+    assert bool(g.dense[0]) and not bool(g.dense[-1])
+
+
+def test_grid_backbone_trains_through_the_pipeline(compose_cfg, tmp_path):
+    res = run(compose_cfg, tmp_path, "train.steps=150", "train.backbone=grid", "train.backbones.grid.width=32",
+              "train.backbones.grid.finest_resolution=32", "train.picture=false")
+    assert res.load("field").meta["backbone"] == "grid"
+    hist = res.load("training")["history"]
+    assert hist[-1]["loss/surface"] < 0.3 * hist[0]["loss/surface"]

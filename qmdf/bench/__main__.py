@@ -6,6 +6,7 @@ import sys
 SUITES = {
     "models": "qmdf.bench.models",
     "extraction": "qmdf.bench.extraction",
+    "field": "qmdf.bench.field",
 }
 
 

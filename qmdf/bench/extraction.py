@@ -16,14 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-SHAPES = ("torus", "box")
+SHAPES = ("torus", "ellipsoid", "box")
 CHAIN = "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]"
 
 
 def run_shape(shape: str, out: Path, overrides: list[str]) -> dict:
     import trimesh
 
-    from qmdf.fields.analytic import ANALYTIC
     from qmdf.geometry.ma_format import read_ma
     from qmdf.geometry.shapes import get_shape
     from qmdf.registry import load_all
@@ -45,9 +44,12 @@ def run_shape(shape: str, out: Path, overrides: list[str]) -> dict:
     metrics = json.loads((run_dir / "05_evaluate" / "metrics.json").read_text())
     membrane = trimesh.load(run_dir / "03_contract" / "membrane.ply", process=False)
     mat = read_ma(run_dir / "04_export" / "mat.ma")
-    field = ANALYTIC[shape]()
-    d = field.axis_distance(np.asarray(membrane.vertices))
-    true_r = field.axis_radius(np.asarray(mat.vertices))
+    from qmdf.fields.field import Field
+
+    field = Field.load(run_dir / "01_analytic_field" / "field.pt")  # exact, in the unit box of the sample
+    norm = field.normalization
+    d = field.axis_distance(norm.to_input(membrane.vertices)) * norm.scale
+    true_r = field.axis_radius(norm.to_input(mat.vertices)) * norm.scale
     row.update(
         cover_vertices=stats["vertices"], cover_faces_before_decimation=stats["faces_before_decimation"],
         cover_s=secs["cover"], contract_s=secs["contract"], export_s=secs["export"],

@@ -12,12 +12,12 @@ import csv
 import json
 import os
 import re
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from qmdf.bench.child import run_child
 from qmdf.rundir import conf_dir
 
 #: The paper's Table 3 (CD and HD x 1e-3, unit box; chi of the medial structure).
@@ -62,25 +62,8 @@ def discover(data: Path) -> list[Model]:
 def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> dict:
     """One pipeline run in a child process; its peak RSS comes from wait4."""
     run_dir = out / model.name
-    run_dir.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "qmdf", model.override, f"hydra.run.dir={run_dir}", *overrides]
-    t0 = time.perf_counter()
-    with open(run_dir / "bench.stdout", "w") as so, open(run_dir / "bench.stderr", "w") as se:
-        proc = subprocess.Popen(cmd, stdout=so, stderr=se)
-        deadline = t0 + timeout
-        status, usage = 0, None
-        while True:  # wait4 (not communicate) so the child's own peak RSS comes back with its status
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.perf_counter() > deadline:
-                proc.kill()
-                _, status, usage = os.wait4(proc.pid, 0)
-                break
-            time.sleep(0.05)
-    wall = time.perf_counter() - t0
-    returncode = os.waitstatus_to_exitcode(status)
-    peak_mb = usage.ru_maxrss / 1024 if usage is not None else None
+    returncode, wall, peak_mb = run_child(cmd, run_dir, timeout)
     stderr = (run_dir / "bench.stderr").read_text()
     row: dict = {"model": model.name, "category": model.category, "expected_chi": model.expected_chi,
                  "wall_s": round(wall, 1), "peak_mb": peak_mb, "returncode": returncode}

@@ -8,19 +8,28 @@ from __future__ import annotations
 
 import numpy as np
 
+from qmdf.geometry import ellipsoid
 from qmdf.geometry.normalize import Normalization
-from qmdf.geometry.shapes import BOX_HALF, TORUS_R, TORUS_r, box_sdf, torus_sdf
+from qmdf.geometry.shapes import BOX_HALF, ELLIPSOID_AXES, TORUS_R, TORUS_r, box_sdf, torus_sdf
 
 
 class AnalyticField:
-    """Subclasses give sdf(p), mf(p) (inside) and the exact distance to the medial axis."""
+    """Subclasses give sdf(p), mf(p) (inside), the distance to the medial axis and the true medial radius
+    there, all in the shape's own coordinates; ``evaluate`` answers in the unit box of the sampled input,
+    like a trained field, through ``normalization`` (shape -> unit box)."""
 
-    normalization = Normalization.identity()
+    def __init__(self, normalization: Normalization | None = None):
+        self.normalization = normalization or Normalization.identity()
 
     @staticmethod
     def _q(p: np.ndarray, sdf: np.ndarray, mf: np.ndarray) -> np.ndarray:
         """mf - |sdf| inside; outside only the inner axis matters, so q grows with the distance instead."""
         return np.where(sdf < 0, mf - np.abs(sdf), sdf)
+
+    def _unit(self, fn):
+        """fn (shape units) as a function of unit-box points, in unit-box lengths."""
+        n = self.normalization
+        return lambda x: fn(n.to_input(x)) * n.scale
 
     def sdf(self, p: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -31,12 +40,17 @@ class AnalyticField:
     def axis_distance(self, p: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def axis_points(self, n: int, seed: int = 0) -> np.ndarray:  # pragma: no cover - abstract
+        """n points spread over the true medial axis."""
+        raise NotImplementedError
+
     def evaluate(self, points: np.ndarray, grad: bool = False, h: float = 1e-5) -> dict[str, np.ndarray]:
         p = np.asarray(points, np.float64)
-        sdf, mf = self.sdf(p), self.mf(p)
+        sdf_fn, mf_fn = self._unit(self.sdf), self._unit(self.mf)
+        sdf, mf = sdf_fn(p), mf_fn(p)
         out = {"sdf": sdf, "mf": mf, "q": self._q(p, sdf, mf)}
         if grad:  # central differences: exact enough for fields that are smooth off the axis
-            for name, fn in (("sdf_grad", self.sdf), ("q_grad", lambda x: self._q(x, self.sdf(x), self.mf(x)))):
+            for name, fn in (("sdf_grad", sdf_fn), ("q_grad", lambda x: self._q(x, sdf_fn(x), mf_fn(x)))):
                 g = np.empty_like(p)
                 for k in range(3):
                     e = np.zeros(3)
@@ -62,6 +76,10 @@ class TorusField(AnalyticField):
 
     def axis_radius(self, p):
         return np.full(len(p), self.r)
+
+    def axis_points(self, n: int, seed: int = 0):
+        t = np.random.default_rng(seed).uniform(0, 2 * np.pi, n)
+        return np.c_[self.R * np.cos(t), self.R * np.sin(t), np.zeros(n)]
 
 
 class BoxField(AnalyticField):
@@ -92,6 +110,9 @@ class BoxField(AnalyticField):
     def axis_radius(self, p):
         return np.abs(self.sdf(p))
 
+    def axis_points(self, n: int, seed: int = 0):
+        return box_medial_points(self.half, n, seed)
+
 
 def box_medial_points(half: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     """Points on a box's medial axis: inside points whose two nearest faces are equally near, found by
@@ -108,4 +129,35 @@ def box_medial_points(half: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     return q
 
 
-ANALYTIC = {"torus": TorusField, "box": BoxField}
+class EllipsoidField(AnalyticField):
+    """Ellipsoid with semi-axes a > b > c: the medial axis is the elliptic disc in the plane of c, with
+    semi-axes (a^2 - c^2)/a, (b^2 - c^2)/b; mf is the distance from the closest surface point to where its
+    normal line crosses that plane."""
+
+    axes = ELLIPSOID_AXES
+
+    def sdf(self, p):
+        return ellipsoid.signed_distance(p, self.axes)
+
+    def mf(self, p):
+        x, _ = ellipsoid.closest_point(p, self.axes)
+        return np.linalg.norm(x - ellipsoid.medial_point(p, self.axes), axis=1)
+
+    def axis_distance(self, p):
+        return np.linalg.norm(p - ellipsoid.closest_on_medial_disc(p, self.axes), axis=1)
+
+    def axis_radius(self, p):
+        return ellipsoid.medial_radius(ellipsoid.closest_on_medial_disc(p, self.axes), self.axes)
+
+    def axis_points(self, n: int, seed: int = 0):
+        """Area-uniform on the medial disc."""
+        k, semi = ellipsoid.medial_disc(self.axes)
+        rng = np.random.default_rng(seed)
+        rho, t = np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+        m = np.zeros((n, 3))
+        others = [i for i in range(3) if i != k]
+        m[:, others[0]], m[:, others[1]] = semi[0] * rho * np.cos(t), semi[1] * rho * np.sin(t)
+        return m
+
+
+ANALYTIC = {"torus": TorusField, "box": BoxField, "ellipsoid": EllipsoidField}

@@ -35,16 +35,20 @@ class MLPConfig:
 
 @register_backbone("mlp", MLPConfig)
 class MLP(nn.Module):
-    """DMF-style softplus MLP (smaller, for a CPU), optionally with Fourier features of the input."""
+    """DMF-style softplus MLP (smaller, for a CPU), optionally with Fourier features of the input.
 
-    def __init__(self, cfg: MLPConfig):
+    ``extra_dim`` more input features (a grid encoding's) may follow the coordinates: their weights start
+    at zero, so the geometric initialisation holds and training adds detail where the data asks for it."""
+
+    def __init__(self, cfg: MLPConfig, extra_dim: int = 0):
         super().__init__()
         self.cfg = cfg
         in_dim = 3
         if cfg.fourier_features:
             self.register_buffer("B", torch.randn(3, cfg.fourier_features) * cfg.fourier_scale * 2 * math.pi)
             in_dim = 3 + 2 * cfg.fourier_features
-        dims = [in_dim] + [cfg.width] * cfg.depth
+        self.extra_dim = extra_dim
+        dims = [in_dim + extra_dim] + [cfg.width] * cfg.depth
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         self.act = nn.Softplus(beta=cfg.softplus_beta)
         self.out_dim = cfg.width
@@ -52,14 +56,86 @@ class MLP(nn.Module):
             for i, layer in enumerate(self.layers):
                 nn.init.normal_(layer.weight, 0.0, math.sqrt(2) / math.sqrt(layer.out_features))
                 nn.init.zeros_(layer.bias)
-                if i == 0 and cfg.fourier_features:
-                    nn.init.zeros_(layer.weight[:, 3:])  # Fourier features start silent, as DMF damps them
+                if i == 0 and (cfg.fourier_features or extra_dim):
+                    nn.init.zeros_(layer.weight[:, 3:])  # Fourier / grid features start silent, as DMF damps them
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
         h = x
         if self.cfg.fourier_features:
             proj = x @ self.B
             h = torch.cat([x, torch.sin(proj), torch.cos(proj)], dim=-1)
+        if extra is not None:
+            h = torch.cat([h, extra], dim=-1)
         for layer in self.layers:
             h = self.act(layer(h))
         return h
+
+
+@dataclass
+class GridConfig:
+    levels: int = param(8, ge=1, le=16, doc="resolution levels of the encoding")
+    features: int = param(2, ge=1, le=8, doc="features per level")
+    base_resolution: int = param(8, ge=2, doc="cells per side at the coarsest level")
+    finest_resolution: int = param(96, ge=2, doc="cells per side at the finest level")
+    log2_table_size: int = param(17, ge=8, le=24, doc="entries per level; finer levels are hashed into it")
+    bound: float = param(0.6, gt=0, doc="the grid covers [-bound, bound]^3 (volume samples reach 0.6)")
+    width: int = param(64, ge=8, doc="hidden width of the MLP after the encoding")
+    depth: int = param(2, ge=1, doc="hidden layers of that MLP")
+    softplus_beta: float = param(100.0, gt=0)
+    geometric_init: bool = param(True, doc="the MLP reads the coordinates too and starts from a sphere's SDF")
+
+
+#: Spatial-hash primes of Instant-NGP (the first is 1 so that a dense level needs no hashing).
+_PRIMES = (1, 2654435761, 805459861)
+
+
+@register_backbone("grid", GridConfig)
+class Grid(nn.Module):
+    """Instant-NGP-style multiresolution grid encoding plus a small softplus MLP, in plain PyTorch.
+
+    Corners are blended with smoothstep weights 3t^2 - 2t^3 instead of linear ones: trilinear blending has
+    a gradient that jumps across cell faces and a zero Hessian inside cells, so the eikonal and
+    orthogonality terms (which differentiate the gradient) would see nothing; smoothstep is C1. Every
+    operation is a gather or an elementwise product, so double backward runs on the CPU with no custom
+    kernel. Coarse levels are dense tables, fine ones hashed."""
+
+    def __init__(self, cfg: GridConfig):
+        super().__init__()
+        self.cfg = cfg
+        growth = (cfg.finest_resolution / cfg.base_resolution) ** (1 / max(1, cfg.levels - 1))
+        res = [int(math.floor(cfg.base_resolution * growth ** i)) for i in range(cfg.levels)]
+        table = 1 << cfg.log2_table_size
+        sizes = [min((r + 1) ** 3, table) for r in res]
+        offsets = [0]
+        for n in sizes[:-1]:
+            offsets.append(offsets[-1] + n)
+        self.register_buffer("res", torch.tensor(res, dtype=torch.float32), persistent=False)
+        self.register_buffer("res_int", torch.tensor(res, dtype=torch.int64), persistent=False)
+        self.register_buffer("size", torch.tensor(sizes, dtype=torch.int64), persistent=False)
+        self.register_buffer("offset", torch.tensor(offsets, dtype=torch.int64), persistent=False)
+        self.register_buffer("dense", torch.tensor([(r + 1) ** 3 <= table for r in res]), persistent=False)
+        self.register_buffer("corners", torch.tensor([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)]), persistent=False)
+        self.table = nn.Parameter(torch.empty(sum(sizes), cfg.features).uniform_(-1e-4, 1e-4))
+        mlp_cfg = MLPConfig(width=cfg.width, depth=cfg.depth, softplus_beta=cfg.softplus_beta,
+                            fourier_features=0, geometric_init=cfg.geometric_init)
+        self.mlp = MLP(mlp_cfg, extra_dim=cfg.levels * cfg.features)
+        self.out_dim = cfg.width
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, 3) -> (N, levels * features)."""
+        u = ((x.clamp(-self.cfg.bound, self.cfg.bound) + self.cfg.bound) / (2 * self.cfg.bound))[:, None, :] * self.res[None, :, None]
+        cell = torch.minimum(u.detach().floor(), (self.res - 1)[None, :, None])  # (N, L, 3); the far face stays in the last cell
+        t = u - cell
+        w1 = t * t * (3 - 2 * t)  # smoothstep: C1 across cell faces
+        idx = cell.long()[:, :, None, :] + self.corners[None, None]  # (N, L, 8, 3)
+        stride = (self.res_int + 1)[None, :, None]
+        dense = idx[..., 0] + stride * (idx[..., 1] + stride * idx[..., 2])
+        hashed = (idx[..., 0] * _PRIMES[0]) ^ (idx[..., 1] * _PRIMES[1]) ^ (idx[..., 2] * _PRIMES[2])
+        flat = torch.where(self.dense[None, :, None], dense, hashed % self.size[None, :, None]) + self.offset[None, :, None]
+        w = torch.stack([1 - w1, w1], -1)  # (N, L, 3, 2): weights of the near and far corner per axis
+        weight = (w[:, :, 0, :, None, None] * w[:, :, 1, None, :, None] * w[:, :, 2, None, None, :]).reshape(*w.shape[:2], 8)
+        feats = self.table[flat]  # (N, L, 8, F)
+        return (weight[..., None] * feats).sum(2).reshape(len(x), -1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.mlp(x, self.encode(x))

@@ -82,7 +82,8 @@ class Field:
         if data.get("format") == ANALYTIC_FORMAT:
             from qmdf.fields.analytic import ANALYTIC
 
-            return ANALYTIC[data["shape"]]()
+            norm = data.get("normalization")
+            return ANALYTIC[data["shape"]](Normalization.from_dict(norm) if norm else None)
         if data.get("format") != FORMAT:
             raise QmdfError(f"{path} is not a qmdf field (format {data.get('format')!r}, expected {FORMAT})")
         entry = BACKBONES.get(data["backbone"])

@@ -56,7 +56,8 @@ def surface(t: Terms, cfg: SurfaceConfig) -> torch.Tensor:
 
 @dataclass
 class EikonalConfig:
-    weight: float = param(50.0, ge=0, doc="mean (|grad sdf| - 1)^2 over surface and volume samples (DiGS: 50)")
+    weight: float = param(100.0, ge=0, doc="mean (|grad sdf| - 1)^2 over surface and volume samples (DiGS: 50; "
+                                           "100 here: a more metric SDF inside, see bench field)")
 
 
 @register_loss("eikonal", EikonalConfig)
@@ -111,7 +112,8 @@ def medial_projection(t: Terms) -> torch.Tensor:
 
 @dataclass
 class MfConsisConfig:
-    weight: float = param(500.0, ge=0, doc="mean (|sdf(M_proj(x))| - mf(x))^2 (DMF: 500)")
+    weight: float = param(2000.0, ge=0, doc="mean (|sdf(M_proj(x))| - mf(x))^2 (DMF: 500; 2000 here ties mf to "
+                                            "the maximal ball harder against mf_maximal's push, see bench field)")
 
 
 @register_loss("mf_consis", MfConsisConfig, medial=True)

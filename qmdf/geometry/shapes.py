@@ -126,7 +126,13 @@ def box(resolution: int):
 ELLIPSOID_AXES = np.array([0.5, 0.35, 0.25])
 
 
-@register_shape("ellipsoid", genus=0, doc="ellipsoid with semi-axes 0.5, 0.35, 0.25; medial axis: an elliptic disc in z=0")
+def ellipsoid_sdf(p: np.ndarray) -> np.ndarray:
+    from qmdf.geometry.ellipsoid import signed_distance
+
+    return signed_distance(p, ELLIPSOID_AXES)
+
+
+@register_shape("ellipsoid", genus=0, sdf=ellipsoid_sdf, doc="ellipsoid with semi-axes 0.5, 0.35, 0.25; medial axis: an elliptic disc in z=0")
 def ellipsoid(resolution: int):
     import trimesh
 
