@@ -98,20 +98,47 @@ class BoxField(AnalyticField):
         others[np.arange(len(p)), k] = np.inf
         return np.minimum(others.min(1), self.half[k])
 
-    def axis_distance(self, p, samples: int = 400_000):
-        """Distance to a dense sampling of the box's medial axis (its sheets: equidistant to two faces)."""
-        from scipy.spatial import cKDTree
+    def axis_distance(self, p):
+        """Exact distance to the box's medial axis, a union of planar pieces (``box_medial_triangles``)."""
+        import trimesh
 
-        if not hasattr(self, "_tree"):
-            self._axis_points = box_medial_points(self.half, samples)
-            self._tree = cKDTree(self._axis_points)
-        return self._tree.query(p)[0]
+        if not hasattr(self, "_triangles"):
+            self._triangles = box_medial_triangles(self.half)
+        p = np.asarray(p, np.float64)
+        best = np.full(len(p), np.inf)
+        for tri in self._triangles:
+            foot = trimesh.triangles.closest_point(np.broadcast_to(tri, (len(p), 3, 3)), p)
+            best = np.minimum(best, np.linalg.norm(p - foot, axis=1))
+        return best
 
     def axis_radius(self, p):
         return np.abs(self.sdf(p))
 
     def axis_points(self, n: int, seed: int = 0):
         return box_medial_points(self.half, n, seed)
+
+
+def box_medial_triangles(half: np.ndarray) -> np.ndarray:
+    """The medial axis of a box with half extents a >= b >= c, as triangles: the central rectangle z = 0,
+    |x| <= a - c, |y| <= b - c, and one bisector piece per edge, from the edge down to that rectangle: the
+    points at equal depth t from the edge's two faces, t in [0, c] (trapezoids for the edges along x and y,
+    triangles for the edges along z, which are only 2c long)."""
+    a, b, c = (float(v) for v in half)
+    if not (a >= b >= c):
+        raise ValueError("box_medial_triangles expects half extents sorted a >= b >= c")
+    quads, tris = [[(-a + c, -b + c, 0), (a - c, -b + c, 0), (a - c, b - c, 0), (-a + c, b - c, 0)]], []
+    for sx in (-1, 1):
+        for sz in (-1, 1):  # edges along y, between faces x = sx a and z = sz c
+            quads.append([(sx * a, -b, sz * c), (sx * a, b, sz * c), (sx * (a - c), b - c, 0), (sx * (a - c), -(b - c), 0)])
+    for sy in (-1, 1):
+        for sz in (-1, 1):  # edges along x, between faces y = sy b and z = sz c
+            quads.append([(-a, sy * b, sz * c), (a, sy * b, sz * c), (a - c, sy * (b - c), 0), (-(a - c), sy * (b - c), 0)])
+    for sx in (-1, 1):
+        for sy in (-1, 1):  # edges along z, between faces x = sx a and y = sy b
+            tris.append([(sx * a, sy * b, -c), (sx * a, sy * b, c), (sx * (a - c), sy * (b - c), 0)])
+    for q in quads:
+        tris += [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
+    return np.array(tris, np.float64)
 
 
 def box_medial_points(half: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
