@@ -246,7 +246,7 @@ class Pipeline:
         seconds = time.perf_counter() - t0
         record = {
             "index": step.index, "name": step.name, "status": status, "key": key,
-            "seconds": round(seconds, 3), "dir": step.dirname, "artifacts": {},
+            "seconds": round(seconds, 3), "peak_rss_mb": peak_rss_mb(), "dir": step.dirname, "artifacts": {},
         }
         for name, rel in written.items():
             path = final_dir / rel
@@ -298,3 +298,15 @@ class Pipeline:
                 yield
             finally:
                 fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def peak_rss_mb() -> float | None:
+    """This process's peak resident memory so far (Linux VmHWM: unlike ru_maxrss, it is not inherited from
+    the process that started us), or None where /proc is not there."""
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        pass
+    return None

@@ -153,3 +153,34 @@ def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path, 
     assert vol == pytest.approx(res.load("covering_stats")["volume"], rel=0.05)
     assert len(boundary_faces(t)) > 0
     assert list(caller.iterdir()) == []
+
+
+def test_lattice_q_is_the_trilinear_interpolant_evaluated_once_per_node():
+    from qmdf.fields.lattice import LatticeQ
+
+    class Trilinear:
+        """A trilinear function: its lattice interpolant is itself, gradient included."""
+
+        calls = 0
+
+        def evaluate(self, p, grad=False):
+            Trilinear.calls += len(p)
+            x, y, z = p.T
+            out = {"q": 2 * x - 3 * y + 0.5 * z + 1 + x * y * z}
+            if grad:
+                out["q_grad"] = np.c_[2 + y * z, -3 + x * z, 0.5 + x * y]
+            return out
+
+    f = Trilinear()
+    x = np.random.default_rng(0).uniform(-0.3, 0.3, (500, 3))
+    lat = LatticeQ(f, 0.01, -0.35 * np.ones(3), 0.35 * np.ones(3))
+    q, g = lat(x)
+    exact = f.evaluate(x, grad=True)
+    assert np.abs(q - exact["q"]).max() < 1e-12 and np.abs(g - exact["q_grad"]).max() < 1e-10
+    first = lat.evaluated
+    assert first <= 8 * len(x) and first == Trilinear.calls - len(x)  # each node once
+    lat(x + 1e-5)  # tiny moves: mostly the same cells, and no node is evaluated twice
+    assert lat.evaluated - first < 0.05 * first
+    far = np.array([[0.9, 0.0, 0.0]])  # off the lattice: the field itself answers
+    q_far, _ = LatticeQ(f, 0.01, -0.35 * np.ones(3), 0.35 * np.ones(3))(far)
+    assert np.isclose(q_far[0], f.evaluate(far)["q"][0])

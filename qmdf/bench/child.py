@@ -8,7 +8,9 @@ from pathlib import Path
 
 
 def run_child(cmd: list[str], run_dir: Path, timeout: float) -> tuple[int, float, float | None]:
-    """(exit code, wall seconds, peak RSS in MB) of ``cmd``; its output goes to run_dir/bench.std{out,err}."""
+    """(exit code, wall seconds, peak RSS in MB) of ``cmd``; its output goes to run_dir/bench.std{out,err}.
+    The peak is an upper bound: Linux carries the parent's RSS at fork into the child's ru_maxrss, so a
+    pipeline's own VmHWM (``peak_rss_mb`` in its manifest) is the figure to prefer."""
     run_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with open(run_dir / "bench.stdout", "w") as so, open(run_dir / "bench.stderr", "w") as se:

@@ -155,7 +155,8 @@ def run_case(case: Case, out: Path, n_points: int, overrides: list[str], timeout
         return row
     secs = {s["name"]: s["seconds"] for s in manifest["stages"]}
     training = json.loads((run_dir / "01_train" / "training.json").read_text())
-    row.update(train_s=round(secs["train"], 1), steps=training["steps"], device=training["device"])
+    peak = max((s.get("peak_rss_mb") or 0) for s in manifest["stages"]) or peak  # the child's own, not inherited
+    row.update(train_s=round(secs["train"], 1), steps=training["steps"], device=training["device"], peak_mb=round(peak))
     t0 = time.perf_counter()
     row.update(score_field(Field.load(run_dir / "01_train" / "field.pt"), case.shape))
     row["score_s"] = round(time.perf_counter() - t0, 1)

@@ -72,6 +72,9 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
         m = json.loads(manifest.read_text())
         row["status"] = m.get("status")
         row["stage_s"] = {s["name"]: s["seconds"] for s in m.get("stages", [])}
+        own = [s.get("peak_rss_mb") for s in m.get("stages", []) if s.get("peak_rss_mb")]
+        if own:  # the child's own peak (wait4's ru_maxrss can carry the bench's own RSS across exec)
+            row["peak_mb"] = max(own)
         if m.get("unavailable_stages"):
             row["note"] = "no MAT: not available in this version: " + ", ".join(m["unavailable_stages"])
         if m.get("error"):

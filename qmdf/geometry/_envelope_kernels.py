@@ -68,11 +68,16 @@ def _slab(px, py, pz, c, r, i1, i2, i3):
 
 
 @njit(cache=True)
-def min_over_pairs(p, pi, pj, prims, kind, c, r, best, arg):
-    """best[pi] = min(best[pi], sdf of primitive pj at p[pi]) over all pairs; arg records the minimiser."""
+def min_over_pairs(p, pi, pj, prims, kind, c, r, anchor, rho, best, arg):
+    """best[pi] = min(best[pi], sdf of primitive pj at p[pi]) over all pairs; arg records the minimiser.
+    A primitive lies in the ball (anchor, rho), so |p - anchor| - rho bounds its value from below: pairs
+    whose bound exceeds the best so far are skipped without evaluating the primitive."""
     for k in range(len(pi)):
         i, j = pi[k], pj[k]
         px, py, pz = p[i, 0], p[i, 1], p[i, 2]
+        lb = math.sqrt((px - anchor[j, 0]) ** 2 + (py - anchor[j, 1]) ** 2 + (pz - anchor[j, 2]) ** 2) - rho[j]
+        if lb > best[i]:
+            continue
         a = prims[j, 0]
         if kind[j] == 0:
             v = math.sqrt((px - c[a, 0]) ** 2 + (py - c[a, 1]) ** 2 + (pz - c[a, 2]) ** 2) - r[a]

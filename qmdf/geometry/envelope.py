@@ -233,10 +233,11 @@ class EnvelopeUnion:
             return best, arg
         from qmdf.geometry._envelope_kernels import min_over_pairs
 
-        # the culling keeps every primitive that can reach u, the minimiser among them: start from +inf so
-        # the minimiser is recorded even when it only ties the bound
-        exact = np.full(len(p), np.inf)
-        min_over_pairs(p, np.concatenate(pts), np.concatenate(prims), self.prims, self.kind, self.c, self.r, exact, arg)
+        # the culling keeps every primitive that can reach u, the minimiser among them; u is attained by a
+        # vertex sphere, which lies inside a primitive, so starting just above u the minimiser is recorded
+        exact = u + pad
+        min_over_pairs(p, np.concatenate(pts), np.concatenate(prims), self.prims, self.kind, self.c, self.r,
+                       self.anchor, self.rho, exact, arg)
         found = arg >= 0
         best[found] = exact[found]
         return best, arg

@@ -21,7 +21,7 @@ class CoverConfig:
     lipschitz: float = param(2.0, ge=1, doc="assumed bound on |grad q| when deciding where to refine (safety margin)")
     extent: float = param(0.55, gt=0, doc="half side of the grid box around the origin (the shape is in [-0.5, 0.5])")
     speck_fraction: float = param(0.01, ge=0, lt=1, doc="drop components with fewer faces than this share of the largest")
-    max_faces: int = param(60000, ge=0, doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction cost scales with it")
+    max_faces: int = param(30000, ge=0, doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction and export cost scale with it (box: 60k faces -> 84 s, 30k -> 54 s, same accuracy; bench extraction)")
 
 
 def covering_field(field, eps: float, lipschitz: float):
