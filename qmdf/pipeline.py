@@ -223,6 +223,7 @@ class Pipeline:
         ctx = StageContext(
             stage=st, cfg=step.cfg, settings=self.settings, stage_dir=final_dir,
             input_paths={k: v.path for k, v in inputs.items()}, log=logging.getLogger(f"qmdf.stage.{step.name}"),
+            sections={k: config_mod.typed_section(self.cfg, k) for k in st.config_deps if k in STAGES},
         )
         key = self.stage_key(step, inputs, ctx)
         entry = self.cache_dir / step.name / key

@@ -158,6 +158,8 @@ _BUILTIN_MODULES = (
     "qmdf.stages.contract",
     "qmdf.stages.export",
     "qmdf.stages.evaluate",
+    "qmdf.stages.feature_detect",
+    "qmdf.stages.feature_retrain",
 )
 
 _loaded = False

@@ -93,6 +93,8 @@ class StageContext:
     #: the pipeline removes it once the stage succeeds.
     work_dir: Path | None = None
     written: dict[str, Path] = field(default_factory=dict)
+    #: typed settings of the other stages named in the stage's config_deps (feature_retrain reads train's)
+    sections: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def seed(self) -> int:

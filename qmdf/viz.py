@@ -124,3 +124,30 @@ def plot_losses(path: Path, history: list[dict]) -> Path:
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return Path(path)
+
+
+def plot_points_over(path: Path, background: np.ndarray, highlight: np.ndarray, title: str = "",
+                     views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)), max_background: int = 8000) -> Path:
+    """``highlight`` points (red) over a thinned, faint ``background`` point cloud."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bg = np.asarray(background)[:: max(1, len(background) // max_background)]
+    hl = np.asarray(highlight)
+    allp = np.vstack([bg, hl])
+    c, r = (allp.min(0) + allp.max(0)) / 2, float((allp.max(0) - allp.min(0)).max()) / 2
+    fig = plt.figure(figsize=(5 * len(views), 5))
+    for i, (elev, azim) in enumerate(views):
+        ax = fig.add_subplot(1, len(views), i + 1, projection="3d")
+        ax.scatter(*bg.T, s=0.3, c="0.7", alpha=0.4)
+        ax.scatter(*hl.T, s=2.0, c="crimson")
+        ax.set_xlim(c[0] - r, c[0] + r), ax.set_ylim(c[1] - r, c[1] + r), ax.set_zlim(c[2] - r, c[2] + r)
+        ax.view_init(elev, azim)
+        ax.set_axis_off()
+    fig.suptitle(title)
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

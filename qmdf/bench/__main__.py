@@ -7,6 +7,7 @@ SUITES = {
     "models": "qmdf.bench.models",
     "extraction": "qmdf.bench.extraction",
     "field": "qmdf.bench.field",
+    "features": "qmdf.bench.features",
 }
 
 

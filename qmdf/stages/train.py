@@ -76,55 +76,16 @@ class Train(Stage):
     version = "1"
 
     def run(self, ctx: StageContext) -> None:
-        import gc
-        import warnings
-
-        import lightning as L
         import torch
 
-        from qmdf.fields.data import StepBatches, loader
         from qmdf.fields.field import Field
-        from qmdf.fields.module import Diverged, FieldModule
+        from qmdf.fields.module import FieldModule
 
         cfg: TrainConfig = ctx.cfg
-        L.seed_everything(ctx.seed, workers=True, verbose=False)
-        warnings.filterwarnings("ignore", message=".*LeafSpec.*")  # Lightning's own deprecation noise, not ours
-        logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
         points = ctx.load("points").points
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         module = FieldModule(cfg.backbone, params, cfg.losses, cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps)
-        work = ctx.work_dir
-        last = work / "last.ckpt"
-        resume = str(last) if cfg.resume and last.exists() else None
-        done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
-        data = StepBatches(points, cfg.steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed, start=done)
-        checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
-                                                         every_n_train_steps=cfg.checkpoint_every)
-        show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
-        trainer = L.Trainer(
-            max_steps=cfg.steps, max_epochs=1, accelerator=cfg.accelerator, devices=1, logger=_logger(cfg, ctx),
-            callbacks=[checkpoint], enable_progress_bar=show_bar, enable_model_summary=False,
-            log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work),
-        )
-        if resume:
-            ctx.log.info("resuming from %s (step %d of %d)", last, done, cfg.steps)
-        try:
-            trainer.fit(module, train_dataloaders=loader(data), ckpt_path=resume)
-        except Diverged as exc:
-            keep = f"; the last good checkpoint is {last}" if last.exists() else ""
-            raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
-        finally:
-            for logger in trainer.loggers:
-                logger.finalize("success")
-            if cfg.logger == "wandb":
-                import wandb
-
-                wandb.finish()  # one wandb run per job, also in a multirun
-            # Nothing of Lightning may outlive the stage: its loggers would flush into this scratch folder
-            # after the pipeline moved it into place.
-            device = str(trainer.strategy.root_device)
-            del trainer
-            gc.collect()
+        device = fit(ctx, cfg, module, points, cfg.steps)
         field = Field(module.net.cpu(), ctx.load("normalization"),
                       {"backbone": cfg.backbone, "backbone_params": params}, device="cpu")
         field.save(ctx.path("field"))
@@ -137,6 +98,56 @@ class Train(Stage):
             plot_field_slices(ctx.stage_dir / "slices.png", field)
             plot_losses(ctx.stage_dir / "losses.png", module.history)
         ctx.log.info("trained %d steps on %d points; final total loss %.4g", cfg.steps, len(points), final.get("loss/total", float("nan")))
+
+
+def fit(ctx: StageContext, cfg: TrainConfig, module, points, steps: int) -> str:
+    """Train ``module`` for ``steps`` with Lightning in the stage's work folder (checkpoints, resume, loggers);
+    returns the device it ran on. Used by train and by feature_retrain."""
+    import gc
+    import warnings
+
+    import lightning as L
+    import torch
+
+    from qmdf.fields.data import StepBatches, loader
+    from qmdf.fields.module import Diverged
+
+    L.seed_everything(ctx.seed, workers=True, verbose=False)
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")  # Lightning's own deprecation noise, not ours
+    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
+    work = ctx.work_dir
+    last = work / "last.ckpt"
+    resume = str(last) if cfg.resume and last.exists() else None
+    done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
+    data = StepBatches(points, steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed, start=done)
+    checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
+                                                     every_n_train_steps=cfg.checkpoint_every)
+    show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
+    trainer = L.Trainer(
+        max_steps=steps, max_epochs=1, accelerator=cfg.accelerator, devices=1, logger=_logger(cfg, ctx),
+        callbacks=[checkpoint], enable_progress_bar=show_bar, enable_model_summary=False,
+        log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work),
+    )
+    if resume:
+        ctx.log.info("resuming from %s (step %d of %d)", last, done, steps)
+    try:
+        trainer.fit(module, train_dataloaders=loader(data), ckpt_path=resume)
+    except Diverged as exc:
+        keep = f"; the last good checkpoint is {last}" if last.exists() else ""
+        raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
+    finally:
+        for logger in trainer.loggers:
+            logger.finalize("success")
+        if cfg.logger == "wandb":
+            import wandb
+
+            wandb.finish()  # one wandb run per job, also in a multirun
+        # Nothing of Lightning may outlive the stage: its loggers would flush into this scratch folder
+        # after the pipeline moved it into place.
+        device = str(trainer.strategy.root_device)
+        del trainer
+        gc.collect()
+    return device
 
 
 def _logger(cfg: TrainConfig, ctx: StageContext):
