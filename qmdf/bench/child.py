@@ -39,3 +39,8 @@ def last_error(run_dir: Path) -> str:
             return err.splitlines()[0][:160]
     lines = (run_dir / "bench.stderr").read_text().strip().splitlines() if (run_dir / "bench.stderr").exists() else []
     return (lines or ["no output"])[-1][:160]
+
+
+def fmt(value, spec: str) -> str:
+    """A table cell: '-' where there is no value."""
+    return "-" if value is None else format(value, spec)

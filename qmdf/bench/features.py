@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qmdf.bench.child import fmt
+
 PROCEDURAL = ("box", "dodecahedron")
 DATA_MODELS = ("cad/block.obj", "cad/sharp_sphere.off", "cad/abc_00000068.obj", "cad/abc_00000125.obj",
                "cad/abc_00000329.obj")
@@ -80,10 +82,6 @@ def run_model(name: str, override: str, out: Path, overrides: list[str], timeout
     return row
 
 
-def _f(v, fmt: str) -> str:
-    return "-" if v is None else format(v, fmt)
-
-
 def main(argv: list[str]) -> int:
     from qmdf.bench.models import default_data_dir
 
@@ -118,7 +116,7 @@ def main(argv: list[str]) -> int:
             continue
         print(f"{r['shape']:<16}{r['sharp_within_0.01_before']:>8.2f}/{r['sharp_within_0.01_after']:<7.2f}"
               f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
-              f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{_f(r['smoothness_before'], '6.3f')}/{_f(r['smoothness_after'], '<7.3f')}"
+              f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
               f"{r['feature_s']:>8.1f}{r['wall_s']:>8.1f}")
     print("\nwithin .01: share of the input's sharp-edge samples within 0.01 of the MAT's boundary (unit box), "
           "before / after enhancement; CD / HD of each MAT's reconstruction against the input.")

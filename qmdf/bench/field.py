@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qmdf.bench.child import fmt
+
 SHAPES = ("torus", "ellipsoid", "box", "teacup")
 BACKBONES = ("mlp", "grid")
 
@@ -163,10 +165,6 @@ def run_case(case: Case, out: Path, n_points: int, overrides: list[str], timeout
     return row
 
 
-def _f(v, fmt: str) -> str:
-    return "-" if v is None else format(v, fmt)
-
-
 def print_table(rows: list[dict]) -> None:
     head = f"{'shape':<22}{'backbone':<9}{'train s':>8}{'peak MB':>8}{'sdf err':>9}{'|grad|':>7}{'q on axis':>10}" \
            f"{'centred':>9}{'c p95':>9}{'chamfer':>9}"
@@ -176,9 +174,9 @@ def print_table(rows: list[dict]) -> None:
         if "note" in r:
             print(f"{r['shape']:<22}{r['backbone']:<9} failed: {r['note']}")
             continue
-        print(f"{r['shape']:<22}{r['backbone']:<9}{r['train_s']:>8.1f}{r['peak_mb']:>8}{_f(r.get('sdf_err'), '9.2e')}"
-              f"{_f(r.get('grad_norm'), '7.3f')}{_f(r.get('q_on_axis'), '10.2e')}{_f(r.get('centredness'), '9.2e')}"
-              f"{_f(r.get('centredness_p95'), '9.2e')}{_f(r.get('chamfer'), '9.2e')}")
+        print(f"{r['shape']:<22}{r['backbone']:<9}{r['train_s']:>8.1f}{r['peak_mb']:>8}{fmt(r.get('sdf_err'), '9.2e')}"
+              f"{fmt(r.get('grad_norm'), '7.3f')}{fmt(r.get('q_on_axis'), '10.2e')}{fmt(r.get('centredness'), '9.2e')}"
+              f"{fmt(r.get('centredness_p95'), '9.2e')}{fmt(r.get('chamfer'), '9.2e')}")
     print("\nunit box. sdf err: mean |sdf - exact| inside; |grad|: mean |grad sdf| inside; centred: mean distance "
           "to the true axis of inside points after descending -grad q (paper: 6.0e-4); chamfer: zero level set "
           "(marching cubes 128^3) to the true (for the cut cyclide: the full) surface.")
