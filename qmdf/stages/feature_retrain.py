@@ -1,6 +1,6 @@
 """``feature_retrain``: continue training from the field with the sharp-feature terms (paper Sec. 4.3):
-L_sharp1 = mean |sdf(p_i)| pins the zero level set onto the feature points, L_sharp2 = mean mf(p_i) drives
-the medial field to zero there, so the medial axis reaches the sharp edges. The training settings (backbone,
+L_sharp1 = mean |sdf(p_i)| pins the zero level set onto the feature points, L_sharp2 = mean |mf(p_i)| drives
+the medial field to zero there (the paper sums mf, a radius; |.| because our heads can go negative), so the medial axis reaches the sharp edges. The training settings (backbone,
 losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
 keep the result before enhancement for comparison."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ class FeatureRetrainConfig:
     lr: float = param(3e-4, gt=0, doc="a gentler start than train.lr: the field is already fitted")
     lr_final: float = param(1e-5, gt=0)
     weight_sdf: float = param(3000.0, ge=0, doc="L_sharp1 = mean |sdf| at the feature points (like the surface term)")
-    weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean mf at the feature points")
+    weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean |mf| at the feature points")
 
 
 @register_stage("feature_retrain")
@@ -57,9 +57,9 @@ class FeatureRetrain(Stage):
         before, after = field.evaluate(feats), out.evaluate(feats)
         stats = {"steps": cfg.steps, "feature_points": int(len(feats)), "device": device,
                  "feature_abs_sdf_before": float(abs(before["sdf"]).mean()), "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
-                 "feature_mf_before": float(before["mf"].mean()), "feature_mf_after": float(after["mf"].mean()),
+                 "feature_mf_before": float(abs(before["mf"]).mean()), "feature_mf_after": float(abs(after["mf"]).mean()),
                  "history": module.history}
         ctx.save("training", stats)
-        ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, mf %.2e -> %.2e", len(feats),
+        ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e", len(feats),
                      stats["feature_abs_sdf_before"], stats["feature_abs_sdf_after"], stats["feature_mf_before"],
                      stats["feature_mf_after"])
