@@ -181,6 +181,16 @@ def test_lattice_q_is_the_trilinear_interpolant_evaluated_once_per_node():
     assert first <= 8 * len(x) and first == Trilinear.calls - len(x)  # each node once
     lat(x + 1e-5)  # tiny moves: mostly the same cells, and no node is evaluated twice
     assert lat.evaluated - first < 0.05 * first
+    # a fresh lattice asked in another order reads back from its block pool (grown many times over from its
+    # initial 64 blocks) exactly what the field gives
+    again = LatticeQ(f, 0.01, -0.35 * np.ones(3), 0.35 * np.ones(3))
+    rng = np.random.default_rng(1)
+    for part in np.array_split(rng.permutation(len(x)), 7):
+        again(x[part])
+    calls = Trilinear.calls
+    q2, _ = again(x)
+    assert len(again.pool) > 64 and np.abs(q2 - exact["q"]).max() < 1e-12
+    assert Trilinear.calls == calls  # every corner came from the pool
     far = np.array([[0.9, 0.0, 0.0]])  # off the lattice: the field itself answers
     q_far, _ = LatticeQ(f, 0.01, -0.35 * np.ones(3), 0.35 * np.ones(3))(far)
     assert np.isclose(q_far[0], f.evaluate(far)["q"][0])

@@ -22,7 +22,8 @@ _B = 8  # nodes per block side (the kernels index with shifts by 3 and masks of 
 @njit(cache=True)
 def _gather(cells, block_id, dims, pool, n_blocks, out):
     """Corner values of each cell into out (M, 8), NaN where not evaluated yet; allocates missing blocks.
-    Returns the new block count, or -1 when the pool is full (the caller grows it and calls again)."""
+    Returns the new block count, or -1 - count when the pool filled up (the caller grows it and calls again;
+    blocks allocated so far stay allocated, so the count must be kept either way)."""
     for m in range(cells.shape[0]):
         for c in range(8):
             i = cells[m, 0] + (c >> 2 & 1)
@@ -31,7 +32,7 @@ def _gather(cells, block_id, dims, pool, n_blocks, out):
             b = ((i >> 3) * dims[1] + (j >> 3)) * dims[2] + (k >> 3)  # indices are >= 0: shifts, not floor division
             if block_id[b] < 0:
                 if n_blocks >= pool.shape[0]:
-                    return -1
+                    return -1 - n_blocks
                 block_id[b] = n_blocks
                 n_blocks += 1
             out[m, c] = pool[block_id[b], ((i & 7) << 6) | ((j & 7) << 3) | (k & 7)]
@@ -120,8 +121,8 @@ class LatticeQ:
         out = np.empty((len(cells), 8))
         while True:
             n = _gather(cells, self.block_id, self.dims, self.pool, self.n_blocks, out)
+            self.n_blocks = n if n >= 0 else -1 - n
             if n >= 0:
-                self.n_blocks = n
                 break
             grown = np.full((2 * len(self.pool), _B ** 3), np.nan)
             grown[:len(self.pool)] = self.pool
