@@ -127,9 +127,6 @@ def volume_and_gradient(x: np.ndarray, faces: np.ndarray | None, tets: np.ndarra
     return EnclosedVolume(len(x), faces, tets)(x)
 
 
-VOLUME_DECAY_POWER = 0.0
-
-
 def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | None, cfg: ContractConfig):
     """The contracted vertices, the per-iteration log of the energy terms and the volume, the initial volume,
     and how many field evaluations it took. Gradients are closed-form (no autograd): the volume's per
@@ -167,9 +164,8 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
         vol, vol_grad = enclosed(x)
         # max(Vol, 0): the signed volume has no minimum at zero; once the layers meet it would keep pushing
         # them through each other (measured: the box's covering diverged to -2e3 without the clamp)
-        decay = (1 - it / cfg.iterations) ** VOLUME_DECAY_POWER
         if vol > 0:
-            g += decay * cfg.lambda_volume / area0 * vol_grad
+            g += cfg.lambda_volume / area0 * vol_grad
         lap = L @ x
         e_lap = float((w[:, None] * lap * lap).sum(1).mean())
         g += cfg.lambda_laplacian * (2.0 / len(x)) * (LT @ (w[:, None] * lap))
