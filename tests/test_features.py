@@ -87,3 +87,23 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
         assert np.percentile(np.abs(field.evaluate(x)["q"]), 95) < 2e-4  # still on the medial axis
         assert abs(history[-1]["volume"]) < 1e-3 * vol0
     assert reach[10.0] > 0.95 and reach[0.0] < 0.5, reach  # measured 0.997 and 0.031
+
+
+def test_sharp_segments_keep_convex_edges_of_a_merged_mesh():
+    """An L-shaped prism: 18 sharp edges, one of them concave (the inner corner), which the medial axis never
+    reaches; repeated vertices (as OBJ files with normals load) must not hide the adjacency."""
+    from trimesh.creation import extrude_triangulation
+
+    from qmdf.stages.feature_detect import sharp_mesh_segments
+
+    outline = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], float)
+    prism = extrude_triangulation(outline, np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]), 1.0)
+    split = prism.vertices[prism.faces.ravel()]  # every face corner its own vertex
+    faces = np.arange(len(split)).reshape(-1, 3)
+    a, b = sharp_mesh_segments(split, faces, 30.0, convex_only=False)
+    assert len(a) == 18
+    mid = (a + b) / 2
+    assert np.isclose(mid[:, :2], 1).all(1).sum() == 1  # the concave edge is among them
+    a, b = sharp_mesh_segments(split, faces, 30.0)
+    mid = (a + b) / 2
+    assert len(a) == 17 and not np.isclose(mid[:, :2], 1).all(1).any()

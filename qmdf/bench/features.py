@@ -2,10 +2,10 @@
 
 Each model runs ``+experiment=cad_features`` in its own process (the first MAT stays in its stage folders);
 ``<shape>-detected`` rows find the feature points by the paper's point-cloud procedure instead of the mesh.
-From the input's sharp edges (dihedral angle above 30 degrees, sampled every 0.005 in the unit box) it
-reports the distance to the nearest point of the MAT's boundary (its fold edges) before and after, the
-fraction of sharp-edge samples within 0.01 of it (the issue's target: over 90% after), CD / HD and the
-boundary smoothness of both MATs, and the time.
+From the input's convex sharp edges (dihedral angle above 30 degrees, sampled every 0.005 in the unit box;
+the medial axis never reaches a concave edge) it reports the distance to the nearest point of the MAT's
+boundary (its fold edges) before and after, the fraction of sharp-edge samples within 0.01 of it (the
+issue's target: over 90% after), CD / HD and the boundary smoothness of both MATs, and the time.
 """
 from __future__ import annotations
 
@@ -45,16 +45,16 @@ def score(run_dir: Path, manifest: dict) -> dict:
 
     from qmdf.evaluate import score_mat
     from qmdf.geometry.ma_format import read_ma
-    from qmdf.stages.feature_detect import sample_segments, sharp_mesh_edges
+    from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
 
     dirs = {}
     for s in manifest["stages"]:
         dirs.setdefault(s["name"], []).append(run_dir / s["dir"])
     surface = trimesh.load(dirs["sample"][0] / "surface.ply", process=False)
     v, f = np.asarray(surface.vertices, np.float64), np.asarray(surface.faces)
-    e = sharp_mesh_edges(v, f, 30.0)
-    sharp = sample_segments(v[e[:, 0]], v[e[:, 1]], 0.005)
-    row: dict = {"sharp_samples": int(len(sharp))}
+    sharp = sample_segments(*sharp_mesh_segments(v, f, 30.0), 0.005)
+    concave = sample_segments(*sharp_mesh_segments(v, f, 30.0, convex_only=False), 0.005)
+    row: dict = {"sharp_samples": int(len(sharp)), "concave_samples_left_out": int(len(concave) - len(sharp))}
     for tag, export_dir in (("before", dirs["export"][0]), ("after", dirs["export"][-1])):
         mat = read_ma(export_dir / "mat.ma")
         d = boundary_distance(sharp, mat)

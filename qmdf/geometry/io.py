@@ -118,6 +118,9 @@ def _read_with_trimesh(path: Path, suffix: str) -> InputGeometry:
         else:
             raise InputError(f"{path} holds no geometry (no vertices or faces were found)")
     if isinstance(loaded, trimesh.Trimesh):
+        # OBJ normals / UVs split a vertex per face corner; merged, faces share edges again (sharp-edge
+        # detection, watertightness)
+        loaded.merge_vertices(merge_tex=True, merge_norm=True)
         vertices = np.asarray(loaded.vertices, dtype=np.float64)
         faces = np.asarray(loaded.faces, dtype=np.int64)
         if len(faces) == 0:

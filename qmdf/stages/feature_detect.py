@@ -1,6 +1,6 @@
 """``feature_detect``: points on the input's sharp features (paper Sec. 4.3, Fig. 5).
 
-From a mesh: every edge whose dihedral angle exceeds ``dihedral_deg``, sampled along it every ``spacing``. From a point cloud (no faces): the paper's procedure on the first MAT:
+From a mesh: every convex edge whose dihedral angle exceeds ``dihedral_deg``, sampled along it every ``spacing``. From a point cloud (no faces): the paper's procedure on the first MAT:
   1. the medial membrane's boundary: fold edges (dihedral near 2*pi) where the radius (SDF) and MF are low;
   2. points sampled on them march along g1 + g2, the means of the two clusters of SDF gradients taken at six
      axis-offset samples (the two faces that meet at the edge), in steps of |sdf| (never past the surface,
@@ -24,6 +24,7 @@ from qmdf.stage import Stage, StageContext, register_stage
 class FeatureDetectConfig:
     source: str = param("auto", choices=("auto", "mesh", "field"), doc="auto: the input mesh when there is one, else the field procedure")
     dihedral_deg: float = param(30.0, gt=0, lt=180, doc="mesh: an edge is sharp when its faces' normals turn by more than this")
+    convex_only: bool = param(True, doc="mesh: keep convex sharp edges only (the medial axis never reaches a concave one)")
     spacing: float = param(0.005, gt=0, doc="distance between feature samples along an edge (unit box)")
     boundary_fold_deg: float = param(150.0, gt=90, lt=180, doc="field: a membrane edge is on its boundary when its faces fold back by more than this")
     max_radius: float = param(0.03, gt=0, doc="field: boundary edges where the medial radius and MF are both below this")
@@ -44,12 +45,20 @@ def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float) -> np.ndarray:
     return np.vstack(out) if out else np.zeros((0, 3))
 
 
-def sharp_mesh_edges(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: float) -> np.ndarray:
-    """(E, 2) vertex pairs of edges whose two faces' normals differ by more than dihedral_deg."""
+def sharp_mesh_segments(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: float,
+                        convex_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """End points (a, b) of the edges whose two faces' normals differ by more than dihedral_deg, on the mesh
+    with coincident vertices merged (OBJ/STL files repeat them per face, which hides every adjacency).
+    ``convex_only``: the medial axis reaches convex edges only; at a concave one the radius does not vanish."""
     import trimesh
 
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    return mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.deg2rad(dihedral_deg)]
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    keep = mesh.face_adjacency_angles > np.deg2rad(dihedral_deg)
+    if convex_only:
+        keep &= mesh.face_adjacency_convex
+    e = mesh.face_adjacency_edges[keep]
+    return mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]]
 
 
 def two_cluster_directions(g: np.ndarray) -> np.ndarray:
@@ -121,9 +130,9 @@ class FeatureDetect(Stage):
                 raise QmdfError("feature_detect.source=mesh needs a mesh input (this input is a point cloud)")
             surface = ctx.load("surface")
             v = np.asarray(surface.vertices)
-            e = sharp_mesh_edges(v, np.asarray(surface.faces), cfg.dihedral_deg)
-            feats = sample_segments(v[e[:, 0]], v[e[:, 1]], cfg.spacing)
-            stats["sharp_edges"] = int(len(e))
+            a, b = sharp_mesh_segments(v, np.asarray(surface.faces), cfg.dihedral_deg, cfg.convex_only)
+            feats = sample_segments(a, b, cfg.spacing)
+            stats["sharp_edges"] = int(len(a))
         else:
             if not (ctx.has("field") and ctx.has("mat")):
                 raise QmdfError("feature_detect on a point cloud needs a trained field and a first MAT: put it after "
