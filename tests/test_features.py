@@ -49,6 +49,7 @@ def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):
     stats = res.load("training")
     assert stats["feature_abs_sdf_after"] < 0.5 * stats["feature_abs_sdf_before"]
     assert stats["feature_mf_after"] < stats["feature_mf_before"]
+    assert stats["bisector_samples"] > 10 * stats["feature_points"]  # mesh features carry their faces' normals
     assert (res.run_dir / "03_feature_retrain" / "field.pt").exists()
 
 
@@ -100,10 +101,35 @@ def test_sharp_segments_keep_convex_edges_of_a_merged_mesh():
     prism = extrude_triangulation(outline, np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]), 1.0)
     split = prism.vertices[prism.faces.ravel()]  # every face corner its own vertex
     faces = np.arange(len(split)).reshape(-1, 3)
-    a, b = sharp_mesh_segments(split, faces, 30.0, convex_only=False)
+    a, b, _ = sharp_mesh_segments(split, faces, 30.0, convex_only=False)
     assert len(a) == 18
     mid = (a + b) / 2
     assert np.isclose(mid[:, :2], 1).all(1).sum() == 1  # the concave edge is among them
-    a, b = sharp_mesh_segments(split, faces, 30.0)
+    a, b, _ = sharp_mesh_segments(split, faces, 30.0)
     mid = (a + b) / 2
     assert len(a) == 17 and not np.isclose(mid[:, :2], 1).all(1).any()
+
+
+def test_bisector_samples_lie_on_the_box_medial_axis_with_its_radius():
+    """From the box's edge samples and face normals alone: medial points with radius = depth, exactly on the
+    known axis, and each walk stops where the sheet ends (a third face comes nearer)."""
+    import trimesh
+
+    from qmdf.fields.analytic import BoxField
+    from qmdf.geometry.bisectors import bisector_samples
+    from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
+
+    box = trimesh.creation.box(extents=2 * BOX_HALF)
+    a, b, mean_normal = sharp_mesh_segments(box.vertices, box.faces, 30.0)
+    assert np.allclose(np.linalg.norm(mean_normal, axis=1), np.sqrt(0.5))  # right angles: cos 45 degrees
+    feats, seg = sample_segments(a, b, 0.01, return_index=True)
+    points = trimesh.sample.sample_surface(box, 20000, seed=1)[0]
+    x, r = bisector_samples(feats, mean_normal[seg], points, 0.3, 0.005)
+    exact = BoxField()
+    err = np.abs(-exact.evaluate(x)["sdf"] - r)
+    # near the sheets' ends the discrete input points let a few walks overshoot, by about their spacing (0.0125)
+    assert np.mean(err > 1e-6) < 0.02 and err.max() < 0.02, (np.mean(err > 1e-6), err.max())
+    assert np.percentile(exact.axis_distance(x), 99) < 1e-6
+    # the walks reach as far as the sheets go: the deepest edge sheet meets the middle at r = 0.25 (half the
+    # thinnest side)
+    assert 0.2 < r.max() < 0.26 and len(x) > 0.8 * len(feats) * 0.3 / 0.005 * 0.5

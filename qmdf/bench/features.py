@@ -1,7 +1,8 @@
 """``python -m qmdf.bench features``: the sharp-feature module on CAD shapes, before and after enhancement.
 
 Each model runs ``+experiment=cad_features`` in its own process (the first MAT stays in its stage folders);
-``<shape>-detected`` rows find the feature points by the paper's point-cloud procedure instead of the mesh.
+``box-paper`` runs the paper's enhancement alone, ``box-detected`` finds the feature points by the paper's
+point-cloud procedure instead of the mesh.
 From the input's convex sharp edges (dihedral angle above 30 degrees, sampled every 0.005 in the unit box;
 the medial axis never reaches a concave edge) it reports the distance to the nearest point of the MAT's
 boundary (its fold edges) before and after, the fraction of sharp-edge samples within 0.01 of it (the
@@ -20,8 +21,10 @@ import numpy as np
 from qmdf.bench.child import fmt
 
 PROCEDURAL = ("box", "dodecahedron")
-# the paper's point-cloud procedure (membrane boundary -> march -> QEM) instead of the mesh's dihedral angles
-DETECTED = ("box",)
+# ablations on the box: the paper's losses and energy alone (no bisector samples, no feature pull); the paper's
+# point-cloud procedure (membrane boundary -> march -> QEM) instead of the mesh's dihedral angles
+VARIANTS = (("box-paper", ["input.shape=box", "feature_retrain.bisector_weight=0", "contract.feature_weight=0"]),
+            ("box-detected", ["input.shape=box", "feature_detect.source=field"]))
 DATA_MODELS = ("cad/block.obj", "cad/sharp_sphere.off", "cad/abc_00000068.obj", "cad/abc_00000125.obj",
                "cad/abc_00000329.obj")
 
@@ -52,8 +55,8 @@ def score(run_dir: Path, manifest: dict) -> dict:
         dirs.setdefault(s["name"], []).append(run_dir / s["dir"])
     surface = trimesh.load(dirs["sample"][0] / "surface.ply", process=False)
     v, f = np.asarray(surface.vertices, np.float64), np.asarray(surface.faces)
-    sharp = sample_segments(*sharp_mesh_segments(v, f, 30.0), 0.005)
-    concave = sample_segments(*sharp_mesh_segments(v, f, 30.0, convex_only=False), 0.005)
+    sharp = sample_segments(*sharp_mesh_segments(v, f, 30.0)[:2], 0.005)
+    concave = sample_segments(*sharp_mesh_segments(v, f, 30.0, convex_only=False)[:2], 0.005)
     row: dict = {"sharp_samples": int(len(sharp)), "concave_samples_left_out": int(len(concave) - len(sharp))}
     for tag, export_dir in (("before", dirs["export"][0]), ("after", dirs["export"][-1])):
         mat = read_ma(export_dir / "mat.ma")
@@ -100,7 +103,7 @@ def main(argv: list[str]) -> int:
     if not args.reuse:
         args.overrides = ["cache.enabled=false", *args.overrides]
     models = [(s, [f"input.shape={s}"]) for s in PROCEDURAL]
-    models += [(f"{s}-detected", [f"input.shape={s}", "feature_detect.source=field"]) for s in DETECTED]
+    models += list(VARIANTS)
     models += [(Path(m).stem, [f"input.path={args.data / m}"]) for m in DATA_MODELS if (args.data / m).exists()]
     if args.only:
         keep = set(args.only.split(","))

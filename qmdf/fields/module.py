@@ -17,12 +17,17 @@ class Diverged(RuntimeError):
 
 class FieldModule(L.LightningModule):
     def __init__(self, backbone: str, backbone_params: dict, losses: dict, medial_field: bool, lr: float,
-                 lr_final: float, steps: int, feature_points=None, sharp_weights: tuple[float, float] = (0.0, 0.0)):
+                 lr_final: float, steps: int, feature_points=None, sharp_weights: tuple[float, float] = (0.0, 0.0),
+                 medial_points=None, medial_radii=None, medial_weight: float = 0.0, medial_batch: int = 4096):
         super().__init__()
         # feature-retrain (paper Sec. 4.3): L_sharp1 = mean |sdf(p_i)|, L_sharp2 = mean |mf(p_i)| at feature points
         # (|mf|: our heads are not sign-constrained, and a plain mean drove mf to -0.22 there, measured on the box)
         self.register_buffer("feature_points", None if feature_points is None else torch.as_tensor(feature_points, dtype=torch.float32))
         self.sharp_weights = sharp_weights
+        # known medial points with their radii (bisectors of sharp edges): sdf = -r and mf = r there
+        self.register_buffer("medial_points", None if medial_points is None else torch.as_tensor(medial_points, dtype=torch.float32))
+        self.register_buffer("medial_radii", None if medial_radii is None else torch.as_tensor(medial_radii, dtype=torch.float32))
+        self.medial_weight, self.medial_batch = medial_weight, medial_batch
         entry = __import__("qmdf.fields.backbones", fromlist=["BACKBONES"]).BACKBONES.get(backbone)
         self.net = MedialFieldNet(backbone, schema.build(entry.config, backbone_params))
         self.medial_field = medial_field
@@ -56,6 +61,13 @@ class FieldModule(L.LightningModule):
             sdf_f, mf_f = self.net(self.feature_points)
             values["sharp_sdf"], values["sharp_mf"] = sdf_f.abs().mean(), mf_f.abs().mean()
             total = total + self.sharp_weights[0] * values["sharp_sdf"] + self.sharp_weights[1] * values["sharp_mf"]
+        if self.medial_points is not None and len(self.medial_points) and self.medial_weight > 0:
+            pick = torch.randint(len(self.medial_points), (min(self.medial_batch, len(self.medial_points)),),
+                                 device=self.medial_points.device)
+            sdf_m, mf_m = self.net(self.medial_points[pick])
+            r = self.medial_radii[pick]
+            values["sharp_medial"] = (sdf_m + r).abs().mean() + (mf_m - r).abs().mean()
+            total = total + self.medial_weight * values["sharp_medial"]
         if not torch.isfinite(total):
             raise Diverged(f"the loss became {total.item()} at step {self.global_step}")
         logs = {f"loss/{k}": v.detach() for k, v in values.items()}

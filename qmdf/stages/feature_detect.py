@@ -35,21 +35,23 @@ class FeatureDetectConfig:
     qem_regularization: float = param(1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put")
 
 
-def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float) -> np.ndarray:
-    """Points every ``spacing`` along each segment a_i -> b_i (at least its midpoint)."""
-    out = []
-    for p, q in zip(a, b):
-        n = max(1, int(np.ceil(np.linalg.norm(q - p) / spacing)))
-        t = (np.arange(n) + 0.5) / n
-        out.append(p + t[:, None] * (q - p))
-    return np.vstack(out) if out else np.zeros((0, 3))
+def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float, return_index: bool = False):
+    """Points every ``spacing`` along each segment a_i -> b_i (at least its midpoint); with ``return_index``
+    also the segment each point lies on."""
+    a, b = np.asarray(a, np.float64).reshape(-1, 3), np.asarray(b, np.float64).reshape(-1, 3)
+    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / spacing)).astype(np.int64)
+    seg = np.repeat(np.arange(len(a)), n)
+    t = (np.arange(len(seg)) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[seg]
+    points = a[seg] + t[:, None] * (b - a)[seg]
+    return (points, seg) if return_index else points
 
 
 def sharp_mesh_segments(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: float,
-                        convex_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """End points (a, b) of the edges whose two faces' normals differ by more than dihedral_deg, on the mesh
-    with coincident vertices merged (OBJ/STL files repeat them per face, which hides every adjacency).
-    ``convex_only``: the medial axis reaches convex edges only; at a concave one the radius does not vanish."""
+                        convex_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """End points (a, b) of the edges whose two faces' normals differ by more than dihedral_deg, and the mean
+    of those two normals, on the mesh with coincident vertices merged (OBJ/STL files repeat them per face,
+    which hides every adjacency). ``convex_only``: the medial axis reaches convex edges only; at a concave
+    one the radius does not vanish."""
     import trimesh
 
     mesh = trimesh.Trimesh(vertices, faces, process=False)
@@ -58,15 +60,17 @@ def sharp_mesh_segments(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: f
     if convex_only:
         keep &= mesh.face_adjacency_convex
     e = mesh.face_adjacency_edges[keep]
-    return mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]]
+    pair = mesh.face_adjacency[keep]
+    mean_normal = 0.5 * (mesh.face_normals[pair[:, 0]] + mesh.face_normals[pair[:, 1]])
+    return mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]], mean_normal
 
 
-def two_cluster_directions(g: np.ndarray) -> np.ndarray:
-    """g (N, 6, 3) unit gradients -> (N, 3): the sum of the means of its two clusters (2-means on the sphere,
-    seeded by the most different pair), which bisects the two faces that meet at the feature."""
+def two_cluster_means(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """g (N, K, 3) unit normals -> the unit means (N, 3) of their two clusters (2-means on the sphere, seeded
+    by the most different pair): the normals of the two faces that meet at the feature."""
     cos = np.einsum("nik,njk->nij", g, g)
-    n = len(g)
-    i, j = np.unravel_index(cos.reshape(n, -1).argmin(1), (6, 6))
+    n, k = g.shape[:2]
+    i, j = np.unravel_index(cos.reshape(n, -1).argmin(1), (k, k))
     c1, c2 = g[np.arange(n), i], g[np.arange(n), j]
     for _ in range(3):
         to1 = np.einsum("nik,nk->ni", g, c1) >= np.einsum("nik,nk->ni", g, c2)
@@ -75,28 +79,34 @@ def two_cluster_directions(g: np.ndarray) -> np.ndarray:
         c1 = m1 / np.maximum(np.linalg.norm(m1, axis=1, keepdims=True), 1e-12)
         c2 = np.where(np.linalg.norm(m2, axis=1, keepdims=True) > 0,
                       m2 / np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-12), c1)
-    d = c1 + c2
-    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return c1, c2
+
+
+def offset_gradients(field, p: np.ndarray, offset: float) -> np.ndarray:
+    """(N, 6, 3) unit SDF gradients at the six axis-offset samples around each point."""
+    offsets = np.vstack([np.eye(3), -np.eye(3)]) * offset
+    g = field.evaluate((p[:, None, :] + offsets[None]).reshape(-1, 3), grad=True)["sdf_grad"].astype(np.float64)
+    g = g.reshape(-1, 6, 3)
+    return g / np.maximum(np.linalg.norm(g, axis=2, keepdims=True), 1e-12)
 
 
 def march_to_features(field, start: np.ndarray, cfg: FeatureDetectConfig) -> np.ndarray:
     p = np.asarray(start, np.float64).copy()
-    offsets = np.vstack([np.eye(3), -np.eye(3)]) * cfg.offset
     for _ in range(cfg.march_steps):
         sdf = field.evaluate(p)["sdf"].astype(np.float64)
         active = np.abs(sdf) > cfg.march_tol
         if not active.any():
             break
-        q = (p[active, None, :] + offsets[None]).reshape(-1, 3)
-        g = field.evaluate(q, grad=True)["sdf_grad"].astype(np.float64).reshape(-1, 6, 3)
-        g /= np.maximum(np.linalg.norm(g, axis=2, keepdims=True), 1e-12)
-        d = two_cluster_directions(g)
+        c1, c2 = two_cluster_means(offset_gradients(field, p[active], cfg.offset))
+        d = c1 + c2
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         p[active] -= sdf[active, None] * d  # toward the surface by |sdf|: g1 + g2 points outward
     return p
 
 
-def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> np.ndarray:
-    """argmin_x sum_j (n_j . (x - p_j))^2 + reg |x - p|^2 over the k nearest input points p_j, n_j = grad sdf."""
+def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> tuple[np.ndarray, np.ndarray]:
+    """argmin_x sum_j (n_j . (x - p_j))^2 + reg |x - p|^2 over the k nearest input points p_j, n_j = grad sdf;
+    and the mean of the two faces' normals there (the means of the n_j's two clusters)."""
     from scipy.spatial import cKDTree
 
     _, idx = cKDTree(points).query(p, k=min(k, len(points)))
@@ -105,7 +115,8 @@ def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> 
     n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-12)
     A = np.einsum("nki,nkj->nij", n, n) + reg * np.eye(3)
     b = np.einsum("nki,nkj,nkj->ni", n, n, nb) + reg * p
-    return np.linalg.solve(A, b[..., None])[..., 0]
+    c1, c2 = two_cluster_means(n)
+    return np.linalg.solve(A, b[..., None])[..., 0], 0.5 * (c1 + c2)
 
 
 @register_stage("feature_detect")
@@ -130,8 +141,9 @@ class FeatureDetect(Stage):
                 raise QmdfError("feature_detect.source=mesh needs a mesh input (this input is a point cloud)")
             surface = ctx.load("surface")
             v = np.asarray(surface.vertices)
-            a, b = sharp_mesh_segments(v, np.asarray(surface.faces), cfg.dihedral_deg, cfg.convex_only)
-            feats = sample_segments(a, b, cfg.spacing)
+            a, b, mean_normal = sharp_mesh_segments(v, np.asarray(surface.faces), cfg.dihedral_deg, cfg.convex_only)
+            feats, seg = sample_segments(a, b, cfg.spacing, return_index=True)
+            normals = mean_normal[seg]
             stats["sharp_edges"] = int(len(a))
         else:
             if not (ctx.has("field") and ctx.has("mat")):
@@ -145,13 +157,15 @@ class FeatureDetect(Stage):
             start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], cfg.spacing)
             stats["boundary_edges"] = int(len(folds))
             if len(start) == 0:
-                feats = start
+                feats, normals = start, start
             else:
                 marched = march_to_features(field, start, cfg)
-                feats = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
+                feats, normals = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
                 stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
         stats["feature_points"] = int(len(feats))
-        ctx.save("feature_points", PointSet(feats if len(feats) else np.zeros((0, 3))))
+        # the points' "normals": the mean of the two faces' unit normals (length cos of half the dihedral angle);
+        # feature_retrain follows the bisector inward from it
+        ctx.save("feature_points", PointSet(feats, normals) if len(feats) else PointSet(np.zeros((0, 3))))
         ctx.save("features", stats)
         if len(feats):
             from qmdf.viz import plot_points_over

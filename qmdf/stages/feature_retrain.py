@@ -1,11 +1,15 @@
 """``feature_retrain``: continue training from the field with the sharp-feature terms (paper Sec. 4.3):
 L_sharp1 = mean |sdf(p_i)| pins the zero level set onto the feature points, L_sharp2 = mean |mf(p_i)| drives
-the medial field to zero there (the paper sums mf, a radius; |.| because our heads can go negative), so the medial axis reaches the sharp edges. The training settings (backbone,
-losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
-keep the result before enhancement for comparison."""
+the medial field to zero there (the paper sums mf, a radius; |.| because our heads can go negative), so the
+medial axis reaches the sharp edges. Not in the paper: the sheet behind each convex feature is known too (its
+bisector, as far as the input points allow, ``qmdf.geometry.bisectors``), and sdf = -r, mf = r are asked
+there. The training settings (backbone, losses, batches) are ``train``'s; put cover, contract and export
+again after this stage: the earlier ones keep the result before enhancement for comparison."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, NORMALIZATION, POINTS
 from qmdf.errors import QmdfError
@@ -20,6 +24,11 @@ class FeatureRetrainConfig:
     lr_final: float = param(1e-5, gt=0)
     weight_sdf: float = param(3000.0, ge=0, doc="L_sharp1 = mean |sdf| at the feature points (like the surface term)")
     weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean |mf| at the feature points")
+    bisector_weight: float = param(1000.0, ge=0, doc="not in the paper: mean |sdf + r| + |mf - r| at medial points "
+                                   "walked along the inward bisector of each feature (0: the paper's losses only)")
+    bisector_length: float = param(0.1, ge=0, doc="how far each bisector walk may go (unit box)")
+    bisector_spacing: float = param(0.005, gt=0, doc="step of the bisector walks")
+    bisector_batch: int = param(4096, ge=1, doc="bisector samples per training step")
 
 
 @register_stage("feature_retrain")
@@ -36,26 +45,33 @@ class FeatureRetrain(Stage):
 
         from qmdf.fields.field import Field
         from qmdf.fields.module import FieldModule
+        from qmdf.geometry.bisectors import bisector_samples
         from qmdf.stages.train import fit
 
         cfg: FeatureRetrainConfig = ctx.cfg
         field = ctx.load("field")
         if not isinstance(field, Field):
             raise QmdfError("feature_retrain needs a trained field (not an analytic one)")
-        feats = ctx.load("feature_points").points
+        features = ctx.load("feature_points")
+        feats = features.points
         if len(feats) == 0:
             raise QmdfError("feature_detect found no feature points; lower feature_detect.dihedral_deg or raise "
                             "feature_detect.max_radius")
+        points = ctx.load("points").points
+        medial, radii = np.zeros((0, 3)), np.zeros(0)
+        if cfg.bisector_weight > 0 and features.normals is not None:
+            medial, radii = bisector_samples(feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing)
         train_cfg = dataclasses.replace(ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False)
         module = FieldModule(field.meta["backbone"], field.meta["backbone_params"], train_cfg.losses,
                              train_cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps, feature_points=feats,
-                             sharp_weights=(cfg.weight_sdf, cfg.weight_mf))
+                             sharp_weights=(cfg.weight_sdf, cfg.weight_mf), medial_points=medial, medial_radii=radii,
+                             medial_weight=cfg.bisector_weight, medial_batch=cfg.bisector_batch)
         module.net.load_state_dict(field.net.state_dict())
-        device = fit(ctx, train_cfg, module, ctx.load("points").points, cfg.steps)
+        device = fit(ctx, train_cfg, module, points, cfg.steps)
         out = Field(module.net.cpu(), ctx.load("normalization"), field.meta, device="cpu")
         out.save(ctx.path("field"))
         before, after = field.evaluate(feats), out.evaluate(feats)
-        stats = {"steps": cfg.steps, "feature_points": int(len(feats)), "device": device,
+        stats = {"steps": cfg.steps, "feature_points": int(len(feats)), "bisector_samples": int(len(medial)), "device": device,
                  "feature_abs_sdf_before": float(abs(before["sdf"]).mean()), "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
                  "feature_mf_before": float(abs(before["mf"]).mean()), "feature_mf_after": float(abs(after["mf"]).mean()),
                  "history": module.history}
