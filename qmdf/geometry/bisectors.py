@@ -12,16 +12,18 @@ import numpy as np
 
 
 def bisector_samples(features: np.ndarray, mean_normals: np.ndarray, points: np.ndarray, length: float,
-                     spacing: float, slack: float = 0.98, min_cos: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+                     spacing: float, slack: float = 0.98, min_cos: float = 0.1,
+                     max_cos: float = float(np.cos(np.deg2rad(15.0)))) -> tuple[np.ndarray, np.ndarray]:
     """(M, 3) medial points and their (M,) radii, every ``spacing`` along each bisector up to ``length``.
 
-    ``min_cos``: edges whose faces nearly fold onto each other (|m| = cos of half the angle between the
-    normals below it) have no reliable bisector and are skipped."""
+    |m| is the cosine of half the angle between the two normals. Below ``min_cos`` the faces nearly fold onto
+    each other and the bisector is unreliable; above ``max_cos`` (normals within 30 degrees) the point is no
+    sharp feature (a detected one on a smooth patch), its inward normal is no medial sheet: both skipped."""
     from scipy.spatial import cKDTree
 
     m = np.asarray(mean_normals, np.float64)
     c = np.linalg.norm(m, axis=1)
-    keep = c > min_cos
+    keep = (c > min_cos) & (c < max_cos)
     p, m, c = np.asarray(features, np.float64)[keep], m[keep], c[keep]
     steps = int(np.floor(length / spacing))
     if len(p) == 0 or steps == 0:
