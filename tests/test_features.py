@@ -133,3 +133,6 @@ def test_bisector_samples_lie_on_the_box_medial_axis_with_its_radius():
     # the walks reach as far as the sheets go: the deepest edge sheet meets the middle at r = 0.25 (half the
     # thinnest side)
     assert 0.2 < r.max() < 0.26 and len(x) > 0.8 * len(feats) * 0.3 / 0.005 * 0.5
+    # a "feature" whose two normals agree (a detected point on a flat patch) has no sheet behind it
+    flat = np.tile([0.0, 0.0, 1.0], (len(feats), 1))
+    assert len(bisector_samples(feats, flat, points, 0.3, 0.005)[0]) == 0
