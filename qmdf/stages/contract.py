@@ -7,7 +7,7 @@ volume term is a mean thickness, comparable to q), L the uniform umbrella Laplac
 proportional to the area around v_i (DCUDF). After ``feature_detect`` (the sharp-feature pass) one more term,
 not in the paper, keeps the covering's tips on the feature points: each feature point pulls its nearest
 vertex, ``feature_weight`` * sum_j |v_k(j) - p_j| / N; without it the tips slid back along the retrained
-field's narrow valley (measured on the box: sharp-edge samples within 0.01 of the covering 0.97, of the
+field's shallow valley (measured on the box: sharp-edge samples within 0.01 of the covering 0.97, of the
 membrane 0.32). Steps: a per-vertex ("vector") Adam with cosine decay. q is read
 from a lazily evaluated fine lattice (``contract.lattice``), so 3k iterations cost seconds, not minutes.
 """

@@ -104,9 +104,8 @@ def march_to_features(field, start: np.ndarray, cfg: FeatureDetectConfig) -> np.
     return p
 
 
-def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> tuple[np.ndarray, np.ndarray]:
-    """argmin_x sum_j (n_j . (x - p_j))^2 + reg |x - p|^2 over the k nearest input points p_j, n_j = grad sdf;
-    and the mean of the two faces' normals there (the means of the n_j's two clusters)."""
+def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> np.ndarray:
+    """argmin_x sum_j (n_j . (x - p_j))^2 + reg |x - p|^2 over the k nearest input points p_j, n_j = grad sdf."""
     from scipy.spatial import cKDTree
 
     _, idx = cKDTree(points).query(p, k=min(k, len(points)))
@@ -115,8 +114,7 @@ def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> 
     n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-12)
     A = np.einsum("nki,nkj->nij", n, n) + reg * np.eye(3)
     b = np.einsum("nki,nkj,nkj->ni", n, n, nb) + reg * p
-    c1, c2 = two_cluster_means(n)
-    return np.linalg.solve(A, b[..., None])[..., 0], 0.5 * (c1 + c2)
+    return np.linalg.solve(A, b[..., None])[..., 0]
 
 
 @register_stage("feature_detect")
@@ -156,15 +154,19 @@ class FeatureDetect(Stage):
             folds = folds[low]
             start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], cfg.spacing)
             stats["boundary_edges"] = int(len(folds))
+            # no normals: the learned field's gradients round the edge off (on the box the two clusters of the
+            # QEM neighbours' normals met at 43 degrees, not 90), so a bisector radius t |m| from them is 30%
+            # too deep; the one benchmark run retraining on such samples ended with q raised along the whole axis
+            normals = None
             if len(start) == 0:
-                feats, normals = start, start
+                feats = start
             else:
                 marched = march_to_features(field, start, cfg)
-                feats, normals = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
+                feats = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
                 stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
         stats["feature_points"] = int(len(feats))
-        # the points' "normals": the mean of the two faces' unit normals (length cos of half the dihedral angle);
-        # feature_retrain follows the bisector inward from it
+        # mesh features' "normals": the mean of the two faces' unit normals (length cos of half the dihedral
+        # angle); feature_retrain follows the bisector inward from it
         ctx.save("feature_points", PointSet(feats, normals) if len(feats) else PointSet(np.zeros((0, 3))))
         ctx.save("features", stats)
         if len(feats):

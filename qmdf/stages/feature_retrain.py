@@ -1,10 +1,11 @@
 """``feature_retrain``: continue training from the field with the sharp-feature terms (paper Sec. 4.3):
 L_sharp1 = mean |sdf(p_i)| pins the zero level set onto the feature points, L_sharp2 = mean |mf(p_i)| drives
 the medial field to zero there (the paper sums mf, a radius; |.| because our heads can go negative), so the
-medial axis reaches the sharp edges. Not in the paper: the sheet behind each convex feature is known too (its
-bisector, as far as the input points allow, ``qmdf.geometry.bisectors``), and sdf = -r, mf = r are asked
-there. The training settings (backbone, losses, batches) are ``train``'s; put cover, contract and export
-again after this stage: the earlier ones keep the result before enhancement for comparison."""
+medial axis reaches the sharp edges. Not in the paper: behind each convex feature from a mesh (whose two
+faces' normals are known) the sheet is known too (its bisector, as far as the input points allow,
+``qmdf.geometry.bisectors``), and sdf = -r, mf = r are asked there. The training settings (backbone,
+losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
+keep the result before enhancement for comparison."""
 from __future__ import annotations
 
 from dataclasses import dataclass
