@@ -77,6 +77,7 @@ class FeatureRetrain(Stage):
                  "feature_mf_before": float(abs(before["mf"]).mean()), "feature_mf_after": float(abs(after["mf"]).mean()),
                  "history": module.history}
         ctx.save("training", stats)
-        ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e", len(feats),
-                     stats["feature_abs_sdf_before"], stats["feature_abs_sdf_after"], stats["feature_mf_before"],
-                     stats["feature_mf_after"])
+        ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e; %d bisector samples%s",
+                     len(feats), stats["feature_abs_sdf_before"], stats["feature_abs_sdf_after"], stats["feature_mf_before"],
+                     stats["feature_mf_after"], len(medial),
+                     "" if features.normals is not None else " (the feature points carry no face normals: none walked)")
