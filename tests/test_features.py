@@ -32,13 +32,32 @@ def test_field_procedure_reaches_the_box_edges(compose_cfg, tmp_path):
     """From the exact box field and its MAT: membrane boundary -> march along g1 + g2 -> QEM onto the edge."""
     cfg = compose_cfg("input.shape=box", "input.shape_resolution=64", "sample.n_points=20000",
                       "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect]",
-                      "cover.resolution=128", "cover.eps=0.01", "contract.iterations=300", "feature_detect.source=field")
+                      "cover.resolution=128", "cover.eps=0.01", "contract.iterations=300", "feature_detect.source=field",
+                      "feature_detect.field_seeds=membrane")
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     feats = res.load("feature_points").points
     stats = res.load("features")
     assert stats["source"] == "field" and stats["boundary_edges"] > 50 and len(feats) > 100
     d = box_edge_distance(feats)
     assert np.median(d) < 3e-3 and np.mean(d < 0.01) > 0.9, (np.median(d), np.mean(d < 0.01))
+
+
+def test_point_cloud_features_cover_every_box_edge_with_face_normals(compose_cfg, tmp_path):
+    """From the input points and the field's gradients alone (no first MAT): two-plane fits find every edge
+    but the corners, on the edge, with the faces' right angle in their mean normal."""
+    from scipy.spatial import cKDTree
+
+    cfg = compose_cfg("input.shape=box", "sample.n_points=20000", "pipeline.stages=[sample,analytic_field,feature_detect]",
+                      "feature_detect.source=field", "feature_detect.field_seeds=points")
+    res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
+    found = res.load("feature_points")
+    stats = res.load("features")
+    assert "boundary_edges" not in stats and stats["point_fits"] > 1000
+    d = box_edge_distance(found.points)
+    assert np.percentile(d, 99) < 0.005, np.percentile(d, 99)
+    assert np.mean(cKDTree(found.points).query(box_edge_samples(0.005))[0] < 0.01) > 0.9
+    m = np.linalg.norm(found.normals, axis=1)
+    assert np.mean(np.abs(m - np.sqrt(0.5)) < 0.02) > 0.95
 
 
 def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):

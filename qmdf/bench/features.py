@@ -27,6 +27,8 @@ VARIANTS = (("box-paper", ["input.shape=box", "feature_retrain.bisector_weight=0
             ("box-detected", ["input.shape=box", "feature_detect.source=field"]))
 DATA_MODELS = ("cad/block.obj", "cad/sharp_sphere.off", "cad/abc_00000068.obj", "cad/abc_00000125.obj",
                "cad/abc_00000329.obj")
+# point clouds of CAD models (features by the point-cloud route), scored against the model's mesh
+CLOUD_MODELS = (("block-cloud1000", "pointclouds/sparse/block_1000.xyz", "cad/block.obj"),)
 
 
 def boundary_distance(sharp: np.ndarray, mat, fold_deg: float = 150.0, spacing: float = 1e-3) -> np.ndarray:
@@ -43,18 +45,27 @@ def boundary_distance(sharp: np.ndarray, mat, fold_deg: float = 150.0, spacing: 
     return cKDTree(np.vstack([dense, mat.vertices[np.unique(e)]])).query(sharp)[0]
 
 
-def score(run_dir: Path, manifest: dict) -> dict:
+def score(run_dir: Path, manifest: dict, reference: Path | None = None) -> dict:
+    """``reference``: the mesh a point-cloud input was sampled from, in the input's coordinates (the run's
+    normalization brings it into the unit box); without it, the run's own input surface."""
     import trimesh
 
     from qmdf.evaluate import score_mat
+    from qmdf.geometry.io import load_geometry
     from qmdf.geometry.ma_format import read_ma
+    from qmdf.geometry.normalize import Normalization
     from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
 
     dirs = {}
     for s in manifest["stages"]:
         dirs.setdefault(s["name"], []).append(run_dir / s["dir"])
-    surface = trimesh.load(dirs["sample"][0] / "surface.ply", process=False)
-    v, f = np.asarray(surface.vertices, np.float64), np.asarray(surface.faces)
+    if reference is None:
+        surface = trimesh.load(dirs["sample"][0] / "surface.ply", process=False)
+        v, f = np.asarray(surface.vertices, np.float64), np.asarray(surface.faces)
+    else:
+        mesh = load_geometry(reference)
+        unit = Normalization.from_dict(json.loads((dirs["sample"][0] / "normalization.json").read_text()))
+        v, f = unit.to_unit(mesh.points.points), np.asarray(mesh.faces)
     sharp = sample_segments(*sharp_mesh_segments(v, f, 30.0)[:2], 0.005)
     concave = sample_segments(*sharp_mesh_segments(v, f, 30.0, convex_only=False)[:2], 0.005)
     row: dict = {"sharp_samples": int(len(sharp)), "concave_samples_left_out": int(len(concave) - len(sharp))}
@@ -69,7 +80,8 @@ def score(run_dir: Path, manifest: dict) -> dict:
     return row
 
 
-def run_model(name: str, override: list[str], out: Path, overrides: list[str], timeout: float) -> dict:
+def run_model(name: str, override: list[str], out: Path, overrides: list[str], timeout: float,
+              reference: Path | None = None) -> dict:
     from qmdf.bench.child import last_error, run_child
 
     run_dir = out / name
@@ -84,7 +96,7 @@ def run_model(name: str, override: list[str], out: Path, overrides: list[str], t
     row["stage_s"] = {f"{s['index']:02d}_{s['name']}": s["seconds"] for s in stages}
     row["feature_s"] = round(sum(s["seconds"] for s in stages if s["name"] in ("feature_detect", "feature_retrain")), 1)
     row["peak_mb"] = max((s.get("peak_rss_mb") or 0) for s in stages)
-    row.update(score(run_dir, manifest))
+    row.update(score(run_dir, manifest, reference))
     return row
 
 
@@ -102,17 +114,19 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     if not args.reuse:
         args.overrides = ["cache.enabled=false", *args.overrides]
-    models = [(s, [f"input.shape={s}"]) for s in PROCEDURAL]
-    models += list(VARIANTS)
-    models += [(Path(m).stem, [f"input.path={args.data / m}"]) for m in DATA_MODELS if (args.data / m).exists()]
+    models = [(s, [f"input.shape={s}"], None) for s in PROCEDURAL]
+    models += [(name, override, None) for name, override in VARIANTS]
+    models += [(Path(m).stem, [f"input.path={args.data / m}"], None) for m in DATA_MODELS if (args.data / m).exists()]
+    models += [(name, [f"input.path={args.data / cloud}"], args.data / mesh) for name, cloud, mesh in CLOUD_MODELS
+               if (args.data / cloud).exists() and (args.data / mesh).exists()]
     if args.only:
         keep = set(args.only.split(","))
         models = [m for m in models if m[0] in keep]
     out = args.out / time.strftime("%Y-%m-%d_%H-%M-%S")
     rows = []
-    for name, override in models:
+    for name, override, reference in models:
         print(f"[{len(rows) + 1}/{len(models)}] {name} ...", file=sys.stderr, flush=True)
-        rows.append(run_model(name, override, out, args.overrides, args.timeout))
+        rows.append(run_model(name, override, out, args.overrides, args.timeout, reference))
     head = (f"{'shape':<16}{'within .01 b/a':>16}{'mean dist b/a':>20}{'CD b/a':>20}{'HD b/a':>20}{'C_avg b/a':>14}"
             f"{'feat s':>8}{'wall s':>8}")
     print(head)

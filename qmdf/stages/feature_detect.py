@@ -1,12 +1,21 @@
 """``feature_detect``: points on the input's sharp features (paper Sec. 4.3, Fig. 5).
 
-From a mesh: every convex edge whose dihedral angle exceeds ``dihedral_deg``, sampled along it every ``spacing``. From a point cloud (no faces): the paper's procedure on the first MAT:
+From a mesh: every convex edge whose dihedral angle exceeds ``dihedral_deg``, sampled along it every ``spacing``.
+From a point cloud (no faces), ``field_seeds`` picks one or both of two routes. ``membrane``, the paper's
+procedure on the first MAT:
   1. the medial membrane's boundary: fold edges (dihedral near 2*pi) where the radius (SDF) and MF are low;
   2. points sampled on them march along g1 + g2, the means of the two clusters of SDF gradients taken at six
      axis-offset samples (the two faces that meet at the edge), in steps of |sdf| (never past the surface,
      since sdf rises along g1 + g2 more slowly than along either normal), until |sdf| < ``march_tol``;
   3. each is refined by the quadric error metric over its ``qem_k`` nearest input points, with SDF gradients
      as their normals: the point closest to all their tangent planes, i.e. on the edge where they meet.
+It finds only the edges the first MAT's membrane already comes near (about 10% of the box's). ``points``
+(not in the paper): every input point whose ``qem_k`` neighbours split into two planes meeting in a convex
+edge sharper than ``dihedral_deg`` gives the piece of that edge where both planes hold points
+(``qmdf.geometry.sharp_points``), sampled every ``spacing``; the learned gradients only tell the two sides
+apart, the planes come from the points themselves. With
+``face_normals`` each feature point also carries the mean of its two planes' normals, so that
+feature_retrain can walk the edge's inward bisector, as it does from a mesh.
 """
 from __future__ import annotations
 
@@ -17,6 +26,7 @@ import numpy as np
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, POINTS
 from qmdf.errors import QmdfError
 from qmdf.schema import param
+from qmdf.geometry.sharp_points import two_cluster_means
 from qmdf.stage import Stage, StageContext, register_stage
 
 
@@ -33,6 +43,13 @@ class FeatureDetectConfig:
     march_tol: float = param(5e-4, gt=0, doc="field: marching stops once |sdf| is below this")
     qem_k: int = param(16, ge=3, doc="field: input points in each point's quadric")
     qem_regularization: float = param(1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put")
+    field_seeds: str = param("both", choices=("membrane", "points", "both"), doc="field: the paper's route from the "
+                             "first MAT's boundary, the input points' two-plane fits, or both")
+    plane_min_points: int = param(4, ge=3, doc="field: neighbours each of the two planes must hold")
+    plane_tolerance: float = param(0.05, gt=0, doc="field: largest RMS distance of the neighbours to their plane, "
+                                   "as a fraction of the neighbourhood's radius (a corner or a noisy patch fits worse)")
+    face_normals: bool = param(True, doc="field: feature points carry their two planes' mean normal (feature_retrain's "
+                               "bisector samples); false: the paper's feature points alone")
 
 
 def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float, return_index: bool = False):
@@ -63,23 +80,6 @@ def sharp_mesh_segments(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: f
     pair = mesh.face_adjacency[keep]
     mean_normal = 0.5 * (mesh.face_normals[pair[:, 0]] + mesh.face_normals[pair[:, 1]])
     return mesh.vertices[e[:, 0]], mesh.vertices[e[:, 1]], mean_normal
-
-
-def two_cluster_means(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """g (N, K, 3) unit normals -> the unit means (N, 3) of their two clusters (2-means on the sphere, seeded
-    by the most different pair): the normals of the two faces that meet at the feature."""
-    cos = np.einsum("nik,njk->nij", g, g)
-    n, k = g.shape[:2]
-    i, j = np.unravel_index(cos.reshape(n, -1).argmin(1), (k, k))
-    c1, c2 = g[np.arange(n), i], g[np.arange(n), j]
-    for _ in range(3):
-        to1 = np.einsum("nik,nk->ni", g, c1) >= np.einsum("nik,nk->ni", g, c2)
-        m1 = (g * to1[..., None]).sum(1)
-        m2 = (g * ~to1[..., None]).sum(1)
-        c1 = m1 / np.maximum(np.linalg.norm(m1, axis=1, keepdims=True), 1e-12)
-        c2 = np.where(np.linalg.norm(m2, axis=1, keepdims=True) > 0,
-                      m2 / np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-12), c1)
-    return c1, c2
 
 
 def offset_gradients(field, p: np.ndarray, offset: float) -> np.ndarray:
@@ -127,7 +127,6 @@ class FeatureDetect(Stage):
     outputs = {"feature_points": POINTS, "features": JSON}
 
     def run(self, ctx: StageContext) -> None:
-        from qmdf.geometry.metrics import fold_edges
         from qmdf.geometry.pointset import PointSet
 
         cfg: FeatureDetectConfig = ctx.cfg
@@ -144,26 +143,7 @@ class FeatureDetect(Stage):
             normals = mean_normal[seg]
             stats["sharp_edges"] = int(len(a))
         else:
-            if not (ctx.has("field") and ctx.has("mat")):
-                raise QmdfError("feature_detect on a point cloud needs a trained field and a first MAT: put it after "
-                                "train, cover, contract and export in pipeline.stages")
-            field, mat = ctx.load("field"), ctx.load("mat")
-            folds = fold_edges(mat.vertices, mat.faces, cfg.boundary_fold_deg)
-            mid = mat.vertices[folds].mean(1)
-            low = (mat.radii[folds].max(1) < cfg.max_radius) & (field.evaluate(mid)["mf"] < cfg.max_radius)
-            folds = folds[low]
-            start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], cfg.spacing)
-            stats["boundary_edges"] = int(len(folds))
-            # no normals: the learned field's gradients round the edge off (on the box the two clusters of the
-            # QEM neighbours' normals met at 43 degrees, not 90), so a bisector radius t |m| from them is 30%
-            # too deep; the one benchmark run retraining on such samples ended with q raised along the whole axis
-            normals = None
-            if len(start) == 0:
-                feats = start
-            else:
-                marched = march_to_features(field, start, cfg)
-                feats = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
-                stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
+            feats, normals = self._from_field(ctx, cfg, points, stats)
         stats["feature_points"] = int(len(feats))
         # mesh features' "normals": the mean of the two faces' unit normals (length cos of half the dihedral
         # angle); feature_retrain follows the bisector inward from it
@@ -174,3 +154,50 @@ class FeatureDetect(Stage):
 
             plot_points_over(ctx.stage_dir / "features.png", points, feats, title=f"sharp features ({source})")
         ctx.log.info("feature_detect (%s): %d feature points", source, len(feats))
+
+    @staticmethod
+    def _from_field(ctx: StageContext, cfg: FeatureDetectConfig, points: np.ndarray, stats: dict):
+        from qmdf.geometry.metrics import fold_edges
+        from qmdf.geometry.sharp_points import fit_edges, thin
+
+        need_mat = cfg.field_seeds != "points"
+        if not ctx.has("field") or (need_mat and not ctx.has("mat")):
+            raise QmdfError("feature_detect on a point cloud needs a trained field" + (
+                " and a first MAT: put it after train, cover, contract and export in pipeline.stages" if need_mat else
+                ": put it after train in pipeline.stages"))
+        field = ctx.load("field")
+        grads = field.evaluate(points, grad=True)["sdf_grad"] if cfg.field_seeds != "membrane" or cfg.face_normals else None
+        found, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
+        if need_mat:
+            mat = ctx.load("mat")
+            folds = fold_edges(mat.vertices, mat.faces, cfg.boundary_fold_deg)
+            mid = mat.vertices[folds].mean(1)
+            low = (mat.radii[folds].max(1) < cfg.max_radius) & (field.evaluate(mid)["mf"] < cfg.max_radius)
+            folds = folds[low]
+            start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], cfg.spacing)
+            stats["boundary_edges"], stats["membrane_points"] = int(len(folds)), int(len(start))
+            if len(start):
+                marched = march_to_features(field, start, cfg)
+                refined = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
+                found.append(refined)
+                if cfg.face_normals:
+                    # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point
+                    # off any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
+                    fit = fit_edges(refined, points, grads, cfg.qem_k, cfg.plane_tolerance)
+                    sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
+                    normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
+        if cfg.field_seeds != "membrane":
+            fit = fit_edges(points, points, grads, cfg.qem_k, cfg.plane_tolerance)
+            sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
+            on_edges, seg = sample_segments(*fit.segments(sharp), cfg.spacing, return_index=True)
+            found.append(on_edges)
+            normals.append(fit.mean_normal[sharp][seg])
+            stats["point_fits"] = int(sharp.sum())
+        feats = np.vstack(found)
+        keep = thin(feats, cfg.spacing)
+        feats = feats[keep]
+        if len(feats):
+            stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
+        if not cfg.face_normals or len(feats) == 0:
+            return feats, None
+        return feats, np.vstack(normals)[keep]

@@ -1,9 +1,10 @@
 """``feature_retrain``: continue training from the field with the sharp-feature terms (paper Sec. 4.3):
 L_sharp1 = mean |sdf(p_i)| pins the zero level set onto the feature points, L_sharp2 = mean |mf(p_i)| drives
 the medial field to zero there (the paper sums mf, a radius; |.| because our heads can go negative), so the
-medial axis reaches the sharp edges. Not in the paper: behind each convex feature from a mesh (whose two
-faces' normals are known) the sheet is known too (its bisector, as far as the input points allow,
-``qmdf.geometry.bisectors``), and sdf = -r, mf = r are asked there. The training settings (backbone,
+medial axis reaches the sharp edges. Not in the paper: behind each convex feature whose two faces' normals
+are known (from a mesh, or from feature_detect's two-plane fits on a point cloud) the sheet is known too
+(its bisector, as far as the input points allow, ``qmdf.geometry.bisectors``), and sdf = -r, mf = r are
+asked there. The training settings (backbone,
 losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
 keep the result before enhancement for comparison."""
 from __future__ import annotations
@@ -27,7 +28,7 @@ class FeatureRetrainConfig:
     weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean |mf| at the feature points")
     bisector_weight: float = param(1000.0, ge=0, doc="not in the paper: mean |sdf + r| + |mf - r| at medial points "
                                    "walked along the inward bisector of each feature (0: the paper's losses only)")
-    bisector_length: float = param(0.1, ge=0, doc="how far each bisector walk may go (unit box)")
+    bisector_length: float = param(0.3, ge=0, doc="how far each bisector walk may go (unit box); the walks stop earlier where the sheet ends")
     bisector_spacing: float = param(0.005, gt=0, doc="step of the bisector walks")
     bisector_batch: int = param(4096, ge=1, doc="bisector samples per training step")
 
