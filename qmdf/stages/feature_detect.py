@@ -46,8 +46,10 @@ class FeatureDetectConfig:
     field_seeds: str = param("both", choices=("membrane", "points", "both"), doc="field: the paper's route from the "
                              "first MAT's boundary, the input points' two-plane fits, or both")
     plane_min_points: int = param(4, ge=3, doc="field: neighbours each of the two planes must hold")
-    plane_tolerance: float = param(0.05, gt=0, doc="field: largest RMS distance of the neighbours to their plane, "
-                                   "as a fraction of the neighbourhood's radius (a corner or a noisy patch fits worse)")
+    plane_tolerance: float = param(0.05, gt=0, doc="field: a neighbour farther than this fraction of the neighbourhood's "
+                                   "radius from both planes is no part of them (a corner's third face, noise)")
+    plane_normal_deg: float = param(45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than "
+                                    "this from the plane's normal")
     face_normals: bool = param(True, doc="field: feature points carry their two planes' mean normal (feature_retrain's "
                                "bisector samples); false: the paper's feature points alone")
 
@@ -183,11 +185,11 @@ class FeatureDetect(Stage):
                 if cfg.face_normals:
                     # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point
                     # off any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
-                    fit = fit_edges(refined, points, grads, cfg.qem_k, cfg.plane_tolerance)
+                    fit = fit_edges(refined, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
                     sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
                     normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
         if cfg.field_seeds != "membrane":
-            fit = fit_edges(points, points, grads, cfg.qem_k, cfg.plane_tolerance)
+            fit = fit_edges(points, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
             sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
             on_edges, seg = sample_segments(*fit.segments(sharp), cfg.spacing, return_index=True)
             found.append(on_edges)
