@@ -168,3 +168,41 @@ def test_contract_after_feature_detect_pulls_toward_the_features(compose_cfg, tm
     assert first["feature_points"] == 0 and first["feature_distance"] is None
     assert second["feature_points"] > 100 and second["pulling_features"] > 0.8 * second["feature_points"]
     assert second["feature_distance"] < 5e-3, second["feature_distance"]  # measured 3.2e-3; grid step 0.017
+
+
+class _FlatField:
+    """q = 0 everywhere: no force from the field, as near a sharp edge where mf and |sdf| both vanish."""
+
+    def evaluate(self, points, grad=False):
+        n = len(points)
+        out = {"sdf": np.zeros(n), "mf": np.zeros(n), "q": np.zeros(n)}
+        if grad:
+            out["sdf_grad"] = out["q_grad"] = np.zeros((n, 3))
+        return out
+
+
+def test_layer_zip_closes_the_layers_near_features_only():
+    """A thin slab (two facing layers 0.008 apart) on a flat field: the zip closes the layers within zip_near
+    of the feature points (at its +x end) and leaves the rest; without it nothing moves them. The layers
+    overshoot each other under Adam's normalised steps: the pairs must hold to bring them back."""
+    import trimesh
+
+    from qmdf.stages.contract import ContractConfig, contract
+
+    slab = trimesh.creation.box(extents=(0.3, 0.008, 0.1))
+    while slab.edges_unique_length.max() > 0.01:
+        slab = slab.subdivide()
+    v, f = np.asarray(slab.vertices), np.asarray(slab.faces)
+    feats = np.column_stack([np.full(11, 0.15), np.zeros(11), np.linspace(-0.05, 0.05, 11)])
+    mid = (np.abs(v[:, 2]) < 0.04) & (np.abs(v[:, 1]) > 0.003)  # the two big faces, away from the z ends
+
+    def gap(x, near):
+        sel = mid & (near(v[:, 0]))
+        return np.abs(x[sel, 1]).mean() * 2  # the layers' distance
+
+    for weight, near_after, far_after in ((1000.0, (0, 2e-3), (7e-3, 9e-3)), (0.0, (7e-3, 9e-3), (7e-3, 9e-3))):
+        cfg = ContractConfig(iterations=300, lattice=0, lambda_volume=0, lambda_laplacian=0, feature_weight=10,
+                             zip_weight=weight, zip_reach=0.01, zip_near=0.05)
+        x = contract(_FlatField(), v, f, None, cfg, feats)[0]
+        near, far = gap(x, lambda s: (s > 0.1) & (s < 0.14)), gap(x, lambda s: s < 0.05)
+        assert near_after[0] <= near <= near_after[1] and far_after[0] <= far <= far_after[1], (weight, near, far)
