@@ -21,9 +21,11 @@ import numpy as np
 from qmdf.bench.child import fmt
 
 PROCEDURAL = ("box", "dodecahedron")
-# ablations on the box: the paper's losses and energy alone (no bisector samples, no feature pull); the paper's
-# point-cloud procedure (membrane boundary -> march -> QEM) instead of the mesh's dihedral angles
-VARIANTS = (("box-paper", ["input.shape=box", "feature_retrain.bisector_weight=0", "contract.feature_weight=0"]),
+# ablations on the box: the paper's losses and energy alone (no bisector samples, no feature pull, no zip); the
+# point-cloud route (two-plane fits of the input points and the paper's membrane boundary -> march -> QEM)
+# instead of the mesh's dihedral angles
+VARIANTS = (("box-paper", ["input.shape=box", "feature_retrain.bisector_weight=0", "contract.feature_weight=0",
+                           "contract.zip_weight=0"]),
             ("box-detected", ["input.shape=box", "feature_detect.source=field"]))
 DATA_MODELS = ("cad/block.obj", "cad/sharp_sphere.off", "cad/abc_00000068.obj", "cad/abc_00000125.obj",
                "cad/abc_00000329.obj")
