@@ -7,7 +7,8 @@ against the block mesh).
 From the input's convex sharp edges (dihedral angle above 30 degrees, sampled every 0.005 in the unit box;
 the medial axis never reaches a concave edge) it reports the distance to the nearest point of the MAT's
 boundary (its fold edges) before and after, the fraction of sharp-edge samples within 0.01 of it (the
-issue's target: over 90% after), the fraction within 0.01 of any point of the MAT, CD / HD and the boundary smoothness of both MATs, and the time.
+issue's target: over 90% after), the fraction within 0.01 of any point of the MAT, CD / HD and the boundary
+smoothness of both MATs, and the time.
 """
 from __future__ import annotations
 
@@ -156,7 +157,8 @@ def main(argv: list[str]) -> int:
             print(f"{r['shape']:<16} failed: {r['note']}")
             continue
         print(f"{r['shape']:<16}{r['sharp_within_0.01_before']:>8.2f}/{r['sharp_within_0.01_after']:<7.2f}"
-              f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
+              f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}"
+              f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
               f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
               f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s'), '.1f'):>8}")
     print("\nwithin .01: share of the input's sharp-edge samples within 0.01 of the MAT's boundary (its fold edges; "

@@ -29,6 +29,12 @@ def two_cluster_means(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c1, c2
 
 
+def _edge_direction(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """(N, 3) unit direction n1 x n2 of the line where two planes meet."""
+    t = np.cross(n1, n2)
+    return t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+
+
 def _plane(x: np.ndarray, w: np.ndarray, orient: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares planes (normal, centroid) through the points x (N, K, 3) weighted by w (N, K), the
     normal turned to agree with ``orient`` (N, 3)."""
@@ -62,8 +68,7 @@ class EdgeFit:
     @property
     def direction(self) -> np.ndarray:
         """(N, 3) unit direction of the edge, n1 x n2."""
-        t = np.cross(self.n1, self.n2)
-        return t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+        return _edge_direction(self.n1, self.n2)
 
     def sharp(self, dihedral_deg: float, min_count: int) -> np.ndarray:
         """Convex edges whose normals turn by more than ``dihedral_deg``, each plane held by at least
@@ -128,9 +133,7 @@ def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int
         behind1 = np.einsum("nk,nk->n", w1, np.einsum("nki,ni->nk", x - e[:, None], n2))
         behind2 = np.einsum("nk,nk->n", w2, np.einsum("nki,ni->nk", x - e[:, None], n1))
         # the edge exists where both faces do: the overlap of the two planes' points along its direction
-        t = np.cross(n1, n2)
-        t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
-        along = np.einsum("nki,ni->nk", x - e[:, None], t)
+        along = np.einsum("nki,ni->nk", x - e[:, None], _edge_direction(n1, n2))
         on1, on2 = w1.astype(bool), w2.astype(bool)
         lo = np.maximum(np.where(on1, along, np.inf).min(1), np.where(on2, along, np.inf).min(1))
         hi = np.minimum(np.where(on1, along, -np.inf).max(1), np.where(on2, along, -np.inf).max(1))

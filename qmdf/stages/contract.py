@@ -9,8 +9,8 @@ not in the paper, keeps the covering's tips on the feature points: each feature 
 vertex, ``feature_weight`` * sum_j |v_k(j) - p_j| / N; without it the tips slid back along the retrained
 field's shallow valley (measured on the box: sharp-edge samples within 0.01 of the covering 0.97, of the
 membrane 0.32). Near the feature points, ``zip_weight`` also pulls each vertex toward the facing
-layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Steps: a per-vertex ("vector") Adam with cosine decay. q is read
-from a lazily evaluated fine lattice (``contract.lattice``), so 3k iterations cost seconds, not minutes.
+layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Steps: a
+per-vertex ("vector") Adam with cosine decay. q is read from a lazily evaluated fine lattice (``contract.lattice``), so 3k iterations cost seconds, not minutes.
 """
 from __future__ import annotations
 
@@ -250,9 +250,10 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
     m = np.zeros_like(x)
     s = np.zeros(len(x))
     history = []
-    pull = FeaturePull(features, surf, cfg.feature_reach) if features is not None and len(features) and cfg.feature_weight > 0 else None
+    has_features = features is not None and len(features) > 0
+    pull = FeaturePull(features, surf, cfg.feature_reach) if has_features and cfg.feature_weight > 0 else None
     feature_distance = None
-    zipper = LayerZip(faces, surf, features, cfg.zip_near, cfg.zip_reach) if pull is not None and cfg.zip_weight > 0 else None
+    zipper = LayerZip(faces, surf, features, cfg.zip_near, cfg.zip_reach) if has_features and cfg.zip_weight > 0 else None
     vol0 = enclosed(x)[0]
     for it in range(cfg.iterations):
         if lattice is not None:
