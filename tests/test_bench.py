@@ -45,3 +45,35 @@ def test_field_scores_of_the_exact_field_are_zero():
     d = f.axis_distance(moved)
     assert np.median(d) < 1e-4 and d.mean() < 2e-3
     assert d.mean() < 0.05 * f.axis_distance(x).mean()
+
+
+def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compose_cfg):
+    """bench features --recontract: with no override it reproduces the run's own enhanced MAT exactly (the
+    contraction is deterministic); overrides change it; a key contract does not know fails with its path."""
+    import numpy as np
+    import pytest
+
+    from qmdf.bench.recontract import recontract
+    from qmdf.errors import QmdfError
+    from qmdf.geometry.ma_format import read_ma
+    from qmdf.pipeline import Pipeline
+
+    cfg = compose_cfg("input.shape=box", "input.shape_resolution=64", "cover.resolution=48", "cover.eps=0.02",
+                      "contract.iterations=100", "export.reconstruction_resolution=32", "export.picture=false",
+                      "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect,cover,contract,export]")
+    run = cli.cwd / "bench" / "box"
+    Pipeline(cfg, run, cli.cwd).run()
+    same = read_ma(recontract(run, cli.cwd / "again", []) / "mat.ma")
+    assert np.allclose(same.vertices, read_ma(run / "08_export" / "mat.ma").vertices, atol=1e-6)
+    zipped = recontract(run, cli.cwd / "zip", ["contract.zip_weight=1000"])
+    assert json.loads((zipped / "contraction.json").read_text())["history"][-1]["zipped_vertices"] > 0
+    with pytest.raises(QmdfError, match="contract.zip_wieght"):
+        recontract(run, cli.cwd / "bad", ["contract.zip_wieght=1"])
+    with pytest.raises(QmdfError, match="contract.key=value overrides only"):
+        recontract(run, cli.cwd / "bad", ["cover.eps=0.1"])
+    proc = cli("features", "--recontract", str(cli.cwd / "bench"), "--json", "rows.json", "contract.iterations=50",
+               module="qmdf.bench")
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads((cli.cwd / "rows.json").read_text())
+    assert row["shape"] == "box" and row["recontract"] == ["contract.iterations=50"]
+    assert 0 <= row["sharp_within_0.01_after"] <= 1 and row["cd_after"] > 0

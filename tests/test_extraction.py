@@ -194,3 +194,54 @@ def test_lattice_q_is_the_trilinear_interpolant_evaluated_once_per_node():
     far = np.array([[0.9, 0.0, 0.0]])  # off the lattice: the field itself answers
     q_far, _ = LatticeQ(f, 0.01, -0.35 * np.ones(3), 0.35 * np.ones(3))(far)
     assert np.isclose(q_far[0], f.evaluate(far)["q"][0])
+
+
+class _RidgeSphere:
+    """A learned-like field of a sphere of radius 0.3 whose mf is a constant 0.02 (as on a plate too thin for
+    the network): q = mf - |sdf| has its ridge on the surface and falls on both sides, so a covering lying on
+    the surface (where q < eps everywhere inside, the covering is the surface itself) may walk out."""
+
+    normalization = Normalization.identity()
+
+    def evaluate(self, points, grad=False):
+        p = np.asarray(points, np.float64)
+        r = np.linalg.norm(p, axis=1)
+        sdf = r - 0.3
+        out = {"sdf": sdf, "mf": np.full(len(p), 0.02), "q": 0.02 - np.abs(sdf)}
+        if grad:
+            n = p / np.maximum(r, 1e-12)[:, None]
+            out["sdf_grad"], out["q_grad"] = n, -np.sign(sdf)[:, None] * n
+        return out
+
+
+def test_inside_q_continues_q_as_mf_plus_sdf_outside():
+    from qmdf.stages.contract import InsideQ
+
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(500, 3)) * 0.3
+    raw, wrapped = _RidgeSphere().evaluate(p, grad=True), InsideQ(_RidgeSphere(), 2.0).evaluate(p, grad=True)
+    inside = raw["sdf"] < 0
+    assert inside.any() and (~inside).any()
+    assert np.array_equal(wrapped["q"][inside], raw["q"][inside])
+    assert np.allclose(wrapped["q"], raw["mf"] + raw["sdf"])  # one formula on both sides: no kink at the surface
+    h, e = 1e-6, np.eye(3)
+    fd = np.stack([(InsideQ(_RidgeSphere(), 2.0).evaluate(p + h * e[k])["q"]
+                    - InsideQ(_RidgeSphere(), 2.0).evaluate(p - h * e[k])["q"]) / (2 * h) for k in range(3)], 1)
+    assert np.allclose(wrapped["q_grad"], fd, atol=1e-5)
+
+
+@pytest.mark.parametrize("weight", [0.0, 2.0])
+def test_contraction_stays_inside_the_shape(weight):
+    """A covering just outside the ridge (the cover stage allows up to two voxels outside): with the paper's q
+    (weight 0) its vertices run outward, with q continued as mf + sdf they come back and go in (this field's q
+    falls all the way to the centre)."""
+    from qmdf.stages.contract import ContractConfig, contract
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.302)
+    cfg = ContractConfig(iterations=300, lattice=0, lambda_volume=0.0, lambda_laplacian=1.0, outside_weight=weight)
+    x = contract(_RidgeSphere(), np.asarray(s.vertices), np.asarray(s.faces), None, cfg)[0]
+    r = np.linalg.norm(x, axis=1)
+    if weight == 0:
+        assert r.min() > 0.33  # every vertex left: the ridge is behind them
+    else:
+        assert r.max() < 0.29

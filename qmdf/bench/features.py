@@ -49,9 +49,10 @@ def boundary_distance(sharp: np.ndarray, mat, fold_deg: float = 150.0, spacing: 
     return cKDTree(np.vstack([dense, mat.vertices[np.unique(e)]])).query(sharp)[0]
 
 
-def score(run_dir: Path, manifest: dict, reference: Path | None = None) -> dict:
+def score(run_dir: Path, manifest: dict, reference: Path | None = None, after: Path | None = None) -> dict:
     """``reference``: the mesh a point-cloud input was sampled from, in the input's coordinates (the run's
-    normalization brings it into the unit box); without it, the run's own input surface."""
+    normalization brings it into the unit box); without it, the run's own input surface. ``after``: the
+    folder of the MAT to score as "after" (default: the run's last export)."""
     import trimesh
 
     from qmdf.evaluate import score_mat
@@ -74,7 +75,7 @@ def score(run_dir: Path, manifest: dict, reference: Path | None = None) -> dict:
     sharp = sample_segments(*sharp_mesh_segments(v, f, 30.0)[:2], 0.005)
     concave = sample_segments(*sharp_mesh_segments(v, f, 30.0, convex_only=False)[:2], 0.005)
     row: dict = {"sharp_samples": int(len(sharp)), "concave_samples_left_out": int(len(concave) - len(sharp))}
-    for tag, export_dir in (("before", dirs["export"][0]), ("after", dirs["export"][-1])):
+    for tag, export_dir in (("before", dirs["export"][0]), ("after", after or dirs["export"][-1])):
         mat = read_ma(export_dir / "mat.ma")
         d = boundary_distance(sharp, mat)
         recon = export_dir / "reconstruction.ply"
@@ -100,8 +101,8 @@ def run_model(name: str, override: list[str], out: Path, overrides: list[str], t
     return {"wall_s": round(wall, 1), **scored_row(name, run_dir, reference)}
 
 
-def scored_row(name: str, run_dir: Path, reference: Path | None = None) -> dict:
-    """The bench row of a finished run: its stage timings and scores."""
+def scored_row(name: str, run_dir: Path, reference: Path | None = None, after: Path | None = None) -> dict:
+    """The bench row of a finished run: its stage timings and scores (``after``: see ``score``)."""
     from qmdf.bench.child import last_error
 
     row: dict = {"shape": name}
@@ -113,8 +114,22 @@ def scored_row(name: str, run_dir: Path, reference: Path | None = None) -> dict:
     row["stage_s"] = {f"{s['index']:02d}_{s['name']}": s["seconds"] for s in stages}
     row["feature_s"] = round(sum(s["seconds"] for s in stages if s["name"] in ("feature_detect", "feature_retrain")), 1)
     row["peak_mb"] = max((s.get("peak_rss_mb") or 0) for s in stages)
-    row.update(score(run_dir, manifest, reference))
+    row.update(score(run_dir, manifest, reference, after))
     return row
+
+
+def recontracted_row(name: str, run_dir: Path, out: Path, overrides: list[str], reference: Path | None) -> dict:
+    """The row of an earlier run whose last contraction ran again with ``overrides`` (its "after")."""
+    from qmdf.bench.recontract import recontract
+    from qmdf.errors import QmdfError
+
+    t0 = time.perf_counter()
+    try:
+        after = recontract(run_dir, out / name, overrides)
+    except QmdfError as exc:
+        return {"shape": name, "note": str(exc)}
+    return {"recontract_s": round(time.perf_counter() - t0, 1), "recontract": overrides,
+            **scored_row(name, run_dir, reference, after)}
 
 
 def main(argv: list[str]) -> int:
@@ -129,7 +144,13 @@ def main(argv: list[str]) -> int:
     ap.add_argument("overrides", nargs="*")
     ap.add_argument("--reuse", action="store_true", help="reuse cached stage results (timings then mean nothing)")
     ap.add_argument("--rescore", type=Path, help="score the runs of an earlier bench (its dated folder) again, running nothing")
+    ap.add_argument("--recontract", type=Path, help="run the last contraction of an earlier bench's runs (its dated "
+                    "folder) again from their saved fields and coverings, with the contract.* overrides given, and "
+                    "score that as 'after'")
     args = ap.parse_args(argv)
+    if args.rescore and args.recontract:
+        ap.error("--rescore and --recontract do not go together")
+    recontract_overrides = list(args.overrides)
     if not args.reuse:
         args.overrides = ["cache.enabled=false", *args.overrides]
     models = [(s, [f"input.shape={s}"], None) for s in PROCEDURAL]
@@ -142,12 +163,21 @@ def main(argv: list[str]) -> int:
         models = [m for m in models if m[0] in keep]
     out = args.out / time.strftime("%Y-%m-%d_%H-%M-%S")
     rows = []
+    earlier = args.rescore or args.recontract
+    if earlier:
+        models = [m for m in models if (earlier / m[0]).is_dir()]
     for name, override, reference in models:
-        if args.rescore and not (args.rescore / name).is_dir():
-            continue
         print(f"[{len(rows) + 1}/{len(models)}] {name} ...", file=sys.stderr, flush=True)
-        rows.append(scored_row(name, args.rescore / name, reference) if args.rescore else
-                    run_model(name, override, out, args.overrides, args.timeout, reference))
+        if args.recontract:
+            rows.append(recontracted_row(name, args.recontract / name, out, recontract_overrides, reference))
+        elif args.rescore:
+            rows.append(scored_row(name, args.rescore / name, reference))
+        else:
+            rows.append(run_model(name, override, out, args.overrides, args.timeout, reference))
+    if args.recontract:
+        given = " ".join(recontract_overrides) or "its own config"
+        print(f"after: the last contraction of {args.recontract} run again with {given}; "
+              "wall s: that contraction and its export")
     head = (f"{'shape':<16}{'within .01 b/a':>16}{'reached b/a':>14}{'mean dist b/a':>20}{'CD b/a':>20}{'HD b/a':>20}"
             f"{'C_avg b/a':>14}{'feat s':>8}{'wall s':>8}")
     print(head)
@@ -160,7 +190,7 @@ def main(argv: list[str]) -> int:
               f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}"
               f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
               f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
-              f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s'), '.1f'):>8}")
+              f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s', r.get('recontract_s')), '.1f'):>8}")
     print("\nwithin .01: share of the input's sharp-edge samples within 0.01 of the MAT's boundary (its fold edges; "
           "unit box), before / after enhancement; reached: within 0.01 of any point of the MAT (a tip that ends in a V "
           "reaches the edge but does not fold there); CD / HD of each MAT's reconstruction against the input.")

@@ -18,6 +18,15 @@ class ExportConfig:
     picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
 
 
+def membrane_to_mat(membrane, field):
+    """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius |sdf| (unit box)."""
+    from qmdf.geometry.ma_format import MedialMesh
+
+    v = np.asarray(membrane.vertices, np.float64)
+    radii = np.abs(field.evaluate(v)["sdf"]).astype(np.float64)
+    return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
+
+
 @register_stage("export")
 class Export(Stage):
     """Write the MAT (.ma, .ply with radius, .obj) in both frames, and its reconstructed surface."""
@@ -32,12 +41,9 @@ class Export(Stage):
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
         from qmdf.geometry.ma_format import MedialMesh, write_ma, write_obj, write_ply_with_radius
 
-        membrane = ctx.load("membrane")
-        field = ctx.load("field")
         norm = ctx.load("normalization")
-        v = np.asarray(membrane.vertices, np.float64)
-        radii = np.abs(field.evaluate(v)["sdf"]).astype(np.float64)
-        mat = MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
+        mat = membrane_to_mat(ctx.load("membrane"), ctx.load("field"))
+        v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
         write_ma(ctx.path("mat_input_units"), in_units)

@@ -1,0 +1,71 @@
+"""Run a finished pipeline's last contraction again, from its saved field, covering and feature points, with
+``contract.*`` overrides: an A/B of the contraction on identical inputs (training is not bit-reproducible,
+so two full runs differ by more than many contraction settings do)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from qmdf.artifacts import FIELD, MESH, POINTS, write_json
+from qmdf.errors import QmdfError
+
+
+def _latest_before(stages: list[dict], artifact: str, index: int) -> str | None:
+    """The path of ``artifact`` as the stage at ``index`` read it: the latest stage before it that made one."""
+    made = [s["artifacts"][artifact]["path"] for s in stages if s["index"] < index and artifact in s.get("artifacts", {})]
+    return made[-1] if made else None
+
+
+def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
+    """Contracts ``run_dir``'s last covering again under its own contract config plus ``overrides``
+    (``contract.key=value``) and writes the MAT as the export stage does (``mat.ma``, ``reconstruction.ply``)
+    and the contraction log into ``out_dir``, which it returns."""
+    import trimesh
+    from omegaconf import OmegaConf
+
+    from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
+    from qmdf.geometry.ma_format import write_ma
+    from qmdf.schema import build, check_section
+    from qmdf.stages.contract import ContractConfig, contract
+    from qmdf.stages.export import membrane_to_mat
+
+    bad = [o for o in overrides if not o.startswith("contract.") or "=" not in o]
+    if bad:
+        raise QmdfError(f"--recontract takes contract.key=value overrides only, got {' '.join(bad)}")
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    stages = manifest["stages"]
+    contracts = [s for s in stages if s["name"] == "contract"]
+    if manifest.get("status") != "complete" or not contracts:
+        raise QmdfError(f"{run_dir} is not a complete run with a contract stage")
+    last = contracts[-1]
+    sources = {k: _latest_before(stages, k, last["index"]) for k in ("field", "covering", "feature_points")}
+    if sources["field"] is None or sources["covering"] is None:
+        raise QmdfError(f"{run_dir}'s manifest names no field or covering before its last contract")
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    node = OmegaConf.merge(OmegaConf.create(config["contract"]),
+                           OmegaConf.from_dotlist([o.removeprefix("contract.") for o in overrides]))
+    problems = check_section(ContractConfig, node, "contract")
+    if problems:
+        raise QmdfError("; ".join(map(str, problems)))
+    cfg = build(ContractConfig, node)
+    field = FIELD.load(run_dir / sources["field"])
+    covering = MESH.load(run_dir / sources["covering"])
+    features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
+    faces = np.asarray(covering.faces)
+    x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, cfg, features)
+    used = np.unique(faces)
+    remap = np.full(len(x), -1)
+    remap[used] = np.arange(len(used))
+    mat = membrane_to_mat(trimesh.Trimesh(x[used], remap[faces], process=False), field)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_ma(out_dir / "mat.ma", mat)
+    resolution = int(config.get("export", {}).get("reconstruction_resolution", 128))
+    recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), resolution)
+    if recon is not None:
+        MESH.save(recon, out_dir / "reconstruction.ply")
+    write_json(out_dir / "contraction.json", {"run": str(run_dir), "overrides": overrides, "initial_volume": vol0,
+                                              "history": history})
+    return out_dir
