@@ -83,3 +83,24 @@ def test_edge_pieces_close_the_gaps_of_a_sparse_cloud_and_stop_at_the_corners():
     # a few fits near a corner take two faces' points for one plane, a little off
     assert np.percentile(d, 95) < 1e-6 and d.max() < 0.015, (np.percentile(d, 95), d.max())
     assert (np.abs(pieces) <= BOX_HALF + 1e-9).all()  # on the box: no piece past a corner
+
+
+def test_a_sparse_cylinder_is_curved_not_sharp_but_a_sparse_box_edge_stays():
+    """At 400 points on a cylinder of radius 0.1, k = 16 neighbours span about 90 degrees of its turn and split
+    into two planes meeting in a convex "edge"; one circle fits them better than the two planes, so the arc
+    test refuses them. The sharp box, sampled as sparsely, keeps its edges."""
+    cyl = trimesh.creation.cylinder(radius=0.1, height=0.6, sections=256)
+    points, face = trimesh.sample.sample_surface_even(cyl, 400, seed=0)
+    side = np.abs(cyl.face_normals[face][:, 2]) < 0.5
+    normals = cyl.face_normals[face]
+    fit = fit_edges(points, points, normals, 16, 0.05)
+    middle = side & (np.abs(points[:, 2]) < 0.2)  # away from the caps' real edges
+    assert fit.sharp(30.0, 4)[middle].mean() > 0.2  # the trap: without the test, many fits pass
+    assert not fit.sharp(30.0, 4, arc_ratio=0.5)[middle].any()
+    assert np.median(fit.rms_arc[middle] / np.maximum(fit.rms_planes[middle], 1e-12)) < 1.0
+
+    box = trimesh.creation.box(extents=2 * BOX_HALF)
+    points, face = trimesh.sample.sample_surface_even(box, 1000, seed=0)
+    fit = fit_edges(points, points, rounded_box_normals(points, 0.03), 16, 0.05)
+    plain, tested = fit.sharp(30.0, 4), fit.sharp(30.0, 4, arc_ratio=0.5)
+    assert plain.sum() > 50 and tested.sum() >= 0.95 * plain.sum()

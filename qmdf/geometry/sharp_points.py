@@ -4,6 +4,9 @@ A learned SDF rounds a sharp edge off: its gradients turn gradually across a ban
 box, the two clusters of gradients met at 43 degrees, not 90). They still tell which face each neighbour
 belongs to, and the neighbours' positions are exact: a plane fitted to each side (k-planes, seeded by the
 two clusters of gradients) gives the faces' normals, and the two planes' intersection the edge itself.
+A sparse sample of a curved patch splits into two planes too (the block's 1,000-point cloud: 48 of 386 fits
+more than 0.02 from any sharp edge, and a quarter of the feature points); one circle across the edge fits
+those better than the two planes, while no circle follows a V.
 """
 from __future__ import annotations
 
@@ -59,6 +62,8 @@ class EdgeFit:
     shift: np.ndarray  # (N,) distance from the query point to ``point``
     reach: np.ndarray  # (N,) distance to the farthest neighbour
     span: np.ndarray  # (N, 2) along the edge from ``point``: where both planes hold neighbours
+    rms_planes: np.ndarray  # (N,) RMS distance of the planes' neighbours to their own plane
+    rms_arc: np.ndarray  # (N,) RMS distance of the same neighbours to one circle fitted across the edge
 
     @property
     def mean_normal(self) -> np.ndarray:
@@ -70,12 +75,16 @@ class EdgeFit:
         """(N, 3) unit direction of the edge, n1 x n2."""
         return _edge_direction(self.n1, self.n2)
 
-    def sharp(self, dihedral_deg: float, min_count: int) -> np.ndarray:
+    def sharp(self, dihedral_deg: float, min_count: int, arc_ratio: float = 0.0) -> np.ndarray:
         """Convex edges whose normals turn by more than ``dihedral_deg``, each plane held by at least
-        ``min_count`` neighbours, the edge within the neighbourhood."""
+        ``min_count`` neighbours, the edge within the neighbourhood; with ``arc_ratio`` > 0, the two planes
+        must also fit the neighbours better than one circular arc by that factor (RMS): a sparse sample of a
+        curved surface splits into two planes too, but an arc fits it better than two planes do, whereas no
+        arc follows a V."""
         turn = np.einsum("ni,ni->n", self.n1, self.n2) < np.cos(np.deg2rad(dihedral_deg))
         held = np.minimum(self.count1, self.count2) >= min_count
-        return turn & self.convex & held & (self.shift <= self.reach)
+        ok = turn & self.convex & held & (self.shift <= self.reach)
+        return ok & (self.rms_planes <= arc_ratio * self.rms_arc) if arc_ratio > 0 else ok
 
     def segments(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End points (a, b) of the edge pieces the selected fits see: on a sparse cloud the nearest points
@@ -83,6 +92,23 @@ class EdgeFit:
         so not past a corner."""
         t = self.direction[mask]
         return self.point[mask] + self.span[mask, :1] * t, self.point[mask] + self.span[mask, 1:] * t
+
+
+def _arc_rms(x: np.ndarray, w: np.ndarray, e: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """RMS distance of the points x (N, K, 3) weighted by w (N, K) to the circle fitted to them (Kasa's
+    algebraic fit) in the plane through e (N, 3) normal to the edge direction t (N, 3)."""
+    u = np.cross(t, np.where(np.abs(t[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    v = np.cross(t, u)
+    d = x - e[:, None]
+    X, Y = np.einsum("nki,ni->nk", d, u), np.einsum("nki,ni->nk", d, v)
+    a = np.stack([X, Y, np.ones_like(X)], -1) * w[..., None]
+    ata = np.einsum("nki,nkj->nij", a, a) + 1e-15 * np.eye(3)
+    coef = np.linalg.solve(ata, np.einsum("nki,nk->ni", a, -(X * X + Y * Y) * w)[..., None])[..., 0]
+    cx, cy = -coef[:, 0] / 2, -coef[:, 1] / 2
+    r = np.sqrt(np.maximum(cx * cx + cy * cy - coef[:, 2], 0.0))
+    off = np.hypot(X - cx[:, None], Y - cy[:, None]) - r[:, None]
+    return np.sqrt((w * off * off).sum(1) / np.maximum(w.sum(1), 1.0))
 
 
 def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int, tolerance: float,
@@ -138,11 +164,15 @@ def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int
         lo = np.maximum(np.where(on1, along, np.inf).min(1), np.where(on2, along, np.inf).min(1))
         hi = np.minimum(np.where(on1, along, -np.inf).max(1), np.where(on2, along, -np.inf).max(1))
         span = np.where((lo <= hi)[:, None], np.stack([lo, hi], 1), 0.0)
+        own = np.where(on1, np.einsum("nki,ni->nk", x - c1[:, None], n1), np.einsum("nki,ni->nk", x - c2[:, None], n2))
+        held = w1 + w2
+        rms_planes = np.sqrt((held * own * own).sum(1) / np.maximum(held.sum(1), 1.0))
+        rms_arc = _arc_rms(x, held, e, _edge_direction(n1, n2))
         parts.append((e, n1, n2, w1.sum(1), w2.sum(1), (behind1 < 0) & (behind2 < 0), np.linalg.norm(e - p, axis=1),
-                      reach, span))
+                      reach, span, rms_planes, rms_arc))
     if not parts:
         return EdgeFit(*[np.zeros((0, 3))] * 3, np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros(0),
-                       np.zeros((0, 2)))
+                       np.zeros((0, 2)), np.zeros(0), np.zeros(0))
     return EdgeFit(*[np.concatenate(c) for c in zip(*parts)])
 
 

@@ -9,7 +9,9 @@ not in the paper, keeps the covering's tips on the feature points: each feature 
 vertex, ``feature_weight`` * sum_j |v_k(j) - p_j| / N; without it the tips slid back along the retrained
 field's shallow valley (measured on the box: sharp-edge samples within 0.01 of the covering 0.97, of the
 membrane 0.32). Near the feature points, ``zip_weight`` also pulls each vertex toward the facing
-layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Steps: a
+layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Not in the
+paper either: the vertices read q + ``outside_weight`` * max(sdf, 0) (``InsideQ``), so q does not fall
+outside the shape and the vertices of thin parts stay in. Steps: a
 per-vertex ("vector") Adam with cosine decay. q is read from a lazily evaluated fine lattice (``contract.lattice``), so 3k iterations cost seconds, not minutes.
 """
 from __future__ import annotations
@@ -40,9 +42,9 @@ class ContractConfig:
                                   "feature_detect stage ran before (0: the paper's energy)")
     feature_reach: float = param(0.02, gt=0, doc="feature points farther than this from the covering pull nothing "
                                  "(the covering never reached them; unit box)")
-    zip_weight: float = param(0.0, ge=0, doc="near the feature points, pull of each vertex toward the facing "
-                              "layer within zip_reach: a local volume term that closes the tips (0: off, the paper's "
-                              "energy; 1000 measured: more sharp edges on the MAT's folds, CD/HD worse on thin plates)")
+    zip_weight: float = param(1000.0, ge=0, doc="near the feature points, pull of each vertex toward the facing "
+                              "layer within zip_reach: a local volume term that closes the tips (0: the paper's energy; "
+                              "acts only where a feature_detect stage ran before)")
     zip_reach: float = param(0.01, gt=0, doc="how far the facing layer may be (unit box)")
     zip_near: float = param(0.05, gt=0, doc="vertices within this of a feature point are zipped (unit box)")
     outside_weight: float = param(2.0, ge=0, doc="the vertices minimise q + outside_weight * max(sdf, 0): 2 continues "

@@ -50,6 +50,8 @@ class FeatureDetectConfig:
                                    "radius from both planes is no part of them (a corner's third face, noise)")
     plane_normal_deg: float = param(45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than "
                                     "this from the plane's normal")
+    arc_ratio: float = param(0.5, ge=0, doc="field: the two planes must fit the neighbours better than one circular "
+                             "arc across the edge by this factor (RMS), or it is a curved patch; 0: no such test")
     face_normals: bool = param(True, doc="field: feature points carry their two planes' mean normal (feature_retrain's "
                                "bisector samples); false: the paper's feature points alone")
 
@@ -186,11 +188,11 @@ class FeatureDetect(Stage):
                     # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point
                     # off any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
                     fit = fit_edges(refined, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
-                    sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
+                    sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points, cfg.arc_ratio)
                     normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
         if cfg.field_seeds != "membrane":
             fit = fit_edges(points, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
-            sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points)
+            sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points, cfg.arc_ratio)
             on_edges, seg = sample_segments(*fit.segments(sharp), cfg.spacing, return_index=True)
             found.append(on_edges)
             normals.append(fit.mean_normal[sharp][seg])
