@@ -61,7 +61,8 @@ class InsideQ:
     as mf + sdf, which rises outward wherever mf does not fall faster than the distance grows."""
 
     def __init__(self, field, weight: float):
-        self.field, self.weight, self.normalization = field, float(weight), field.normalization
+        self.field, self.weight = field, float(weight)
+        self.normalization = getattr(field, "normalization", None)
 
     def evaluate(self, points: np.ndarray, grad: bool = False) -> dict[str, np.ndarray]:
         out = self.field.evaluate(points, grad=grad)
