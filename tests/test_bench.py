@@ -71,6 +71,10 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
         recontract(run, cli.cwd / "bad", ["contract.zip_wieght=1"])
     with pytest.raises(QmdfError, match="contract.key=value overrides only"):
         recontract(run, cli.cwd / "bad", ["cover.eps=0.1"])
+    with pytest.raises(QmdfError, match="volume=surface only"):
+        recontract(run, cli.cwd / "bad", ["contract.volume=tets"])
+    with pytest.raises(QmdfError, match="not a run folder"):
+        recontract(cli.cwd / "bench", cli.cwd / "bad", [])
     proc = cli("features", "--recontract", str(cli.cwd / "bench"), "--json", "rows.json", "contract.iterations=50",
                module="qmdf.bench")
     assert proc.returncode == 0, proc.stderr

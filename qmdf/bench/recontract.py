@@ -35,6 +35,8 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     bad = [o for o in overrides if not o.startswith("contract.") or "=" not in o]
     if bad:
         raise QmdfError(f"--recontract takes contract.key=value overrides only, got {' '.join(bad)}")
+    if not (run_dir / "manifest.json").is_file():
+        raise QmdfError(f"{run_dir} has no manifest.json: not a run folder")
     manifest = json.loads((run_dir / "manifest.json").read_text())
     stages = manifest["stages"]
     contracts = [s for s in stages if s["name"] == "contract"]
@@ -51,6 +53,8 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     if problems:
         raise QmdfError("; ".join(map(str, problems)))
     cfg = build(ContractConfig, node)
+    if cfg.volume != "surface":
+        raise QmdfError("--recontract replays contractions with contract.volume=surface only")
     field = FIELD.load(run_dir / sources["field"])
     covering = MESH.load(run_dir / sources["covering"])
     features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
