@@ -45,7 +45,7 @@ class ContractConfig:
     zip_weight: float = param(1000.0, ge=0, doc="near the feature points, pull of each vertex toward the facing "
                               "layer within zip_reach: a local volume term that closes the tips (0: the paper's energy; "
                               "acts only where a feature_detect stage ran before)")
-    zip_reach: float = param(0.02, gt=0, doc="how far the facing layer may be (unit box; 0.01 folded 5 to 13 points fewer "
+    zip_reach: float = param(0.02, gt=0, doc="how far the facing layer may be (unit box; 0.01 folded 4 to 13 points fewer "
                              "of the sharp-edge samples on the procedural and well-fitted CAD shapes)")
     zip_near: float = param(0.05, gt=0, doc="vertices within this of a feature point are zipped (unit box)")
     outside_weight: float = param(2.0, ge=0, doc="the vertices minimise q + outside_weight * max(sdf, 0): 2 continues "
