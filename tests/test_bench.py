@@ -65,8 +65,10 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
     Pipeline(cfg, run, cli.cwd).run()
     same = read_ma(recontract(run, cli.cwd / "again", []) / "mat.ma")
     assert np.allclose(same.vertices, read_ma(run / "08_export" / "mat.ma").vertices, atol=1e-6)
-    zipped = recontract(run, cli.cwd / "zip", ["contract.zip_weight=1000"])
-    assert json.loads((zipped / "contraction.json").read_text())["history"][-1]["zipped_vertices"] > 0
+    assert json.loads((run / "07_contract" / "contraction.json").read_text())["history"][-1]["zipped_vertices"] > 0
+    unzipped = recontract(run, cli.cwd / "nozip", ["contract.zip_weight=0"])
+    assert "zipped_vertices" not in json.loads((unzipped / "contraction.json").read_text())["history"][-1]
+    assert not np.allclose(read_ma(unzipped / "mat.ma").vertices, same.vertices, atol=1e-4)
     with pytest.raises(QmdfError, match="contract.zip_wieght"):
         recontract(run, cli.cwd / "bad", ["contract.zip_wieght=1"])
     with pytest.raises(QmdfError, match="contract.key=value overrides only"):
