@@ -23,13 +23,12 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     """Contracts ``run_dir``'s last covering again under its own contract config plus ``overrides``
     (``contract.key=value``) and writes the MAT as the export stage does (``mat.ma``, ``reconstruction.ply``)
     and the contraction log into ``out_dir``, which it returns."""
-    import trimesh
     from omegaconf import OmegaConf
 
     from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
     from qmdf.geometry.ma_format import write_ma
     from qmdf.schema import build, check_section
-    from qmdf.stages.contract import ContractConfig, contract
+    from qmdf.stages.contract import ContractConfig, contract, surface_mesh
     from qmdf.stages.export import membrane_to_mat
 
     bad = [o for o in overrides if not o.startswith("contract.") or "=" not in o]
@@ -60,10 +59,7 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
     faces = np.asarray(covering.faces)
     x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, cfg, features)
-    used = np.unique(faces)
-    remap = np.full(len(x), -1)
-    remap[used] = np.arange(len(used))
-    mat = membrane_to_mat(trimesh.Trimesh(x[used], remap[faces], process=False), field)
+    mat = membrane_to_mat(surface_mesh(x, faces), field)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)
     resolution = int(config.get("export", {}).get("reconstruction_resolution", 128))

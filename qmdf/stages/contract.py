@@ -320,6 +320,16 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
     return x, history, vol0, evaluations
 
 
+def surface_mesh(x: np.ndarray, faces: np.ndarray):
+    """The contracted surface as a mesh of its own vertices (a tet covering's inner vertices dropped)."""
+    import trimesh
+
+    used = np.unique(faces)
+    remap = np.full(len(x), -1)
+    remap[used] = np.arange(len(used))
+    return trimesh.Trimesh(x[used], remap[faces], process=False)
+
+
 @register_stage("contract")
 class Contract(Stage):
     """Optimise the covering's vertices onto the minima of Q-MDF while its volume goes to zero."""
@@ -331,8 +341,6 @@ class Contract(Stage):
     optional_outputs = {"contracted_tets": TETS}
 
     def run(self, ctx: StageContext) -> None:
-        import trimesh
-
         from qmdf.geometry.tets import boundary_faces
 
         cfg: ContractConfig = ctx.cfg
@@ -348,11 +356,7 @@ class Contract(Stage):
             v, t, faces = np.asarray(mesh.vertices), None, np.asarray(mesh.faces)
         features = ctx.load("feature_points").points if ctx.has("feature_points") else None
         x, history, vol0, evaluations = contract(field, v, faces, t, cfg, features)
-        used = np.unique(faces)
-        remap = np.full(len(x), -1)
-        remap[used] = np.arange(len(used))
-        membrane = trimesh.Trimesh(x[used], remap[faces], process=False)
-        ctx.save("membrane", membrane)
+        ctx.save("membrane", surface_mesh(x, faces))
         if t is not None:
             ctx.save("contracted_tets", (x, t))
         final = history[-1]
