@@ -9,7 +9,7 @@ from qmdf.geometry.normalize import Normalization
 from qmdf.geometry.pointset import PointSet
 from qmdf.geometry.shapes import get_shape
 from qmdf.registry import DEGRADATIONS, load_all
-from qmdf.stages.sample import sample_surface
+from qmdf.stages.sample import outward_normals, sample_surface
 
 load_all()
 
@@ -43,6 +43,25 @@ def test_surface_samples_lie_on_the_mesh_with_its_normals():
     _, dist, tri = __import__("trimesh").proximity.closest_point(mesh, s.points)
     assert dist.max() < 1e-9
     assert np.all((mesh.face_normals[tri] * s.normals).sum(1) > 0.999)
+
+
+def test_sample_normals_point_outward_or_are_dropped():
+    """A mesh wound inward gets its normals flipped out; one with mixed winding gets none (no side to trust)."""
+    import logging
+
+    mesh = get_shape("box").mesh(16)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    log = logging.getLogger("test")
+    rng = np.random.default_rng(0)
+    for faces in (f, f[:, ::-1]):
+        s = outward_normals(sample_surface(v, faces, 3000, rng), v, faces, log)
+        half = np.array([0.5, 0.35, 0.25])
+        axis = np.argmax(np.abs(s.points) / half, axis=1)
+        outward = np.sign(s.points[np.arange(len(s)), axis])  # the face each sample is on, seen from the centre
+        assert np.all(s.normals[np.arange(len(s)), axis] * outward > 0.999)
+    mixed = f.copy()
+    mixed[::7] = mixed[::7, ::-1]
+    assert outward_normals(sample_surface(v, mixed, 100, rng), v, mixed, log).normals is None
 
 
 def test_surface_sampling_is_uniform_by_area():

@@ -17,11 +17,13 @@ def local_spacing(points: np.ndarray, k: int = 50) -> np.ndarray:
 
 
 class StepBatches(Dataset):
-    """Item i is the batch of step i: (surface points, volume points)."""
+    """Item i is the batch of step i: (surface points, volume points), plus the surface points' normals when
+    ``normals`` is given."""
 
     def __init__(self, points: np.ndarray, steps: int, surface_batch: int, volume_batch: int,
-                 uniform_fraction: float, seed: int, box: float = 0.6, start: int = 0):
+                 uniform_fraction: float, seed: int, box: float = 0.6, start: int = 0, normals: np.ndarray | None = None):
         self.points = torch.as_tensor(points, dtype=torch.float32)
+        self.normals = None if normals is None else torch.as_tensor(normals, dtype=torch.float32)
         self.sigma = torch.as_tensor(local_spacing(points), dtype=torch.float32)
         self.steps, self.bs, self.bv = steps, surface_batch, volume_batch
         self.n_uniform = int(round(volume_batch * uniform_fraction))
@@ -35,11 +37,14 @@ class StepBatches(Dataset):
         step = self.start + index
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
         n = len(self.points)
-        xs = self.points[torch.randint(n, (self.bs,), generator=g)]
+        pick = torch.randint(n, (self.bs,), generator=g)
+        xs = self.points[pick]
         near_idx = torch.randint(n, (self.bv - self.n_uniform,), generator=g)
         near = self.points[near_idx] + torch.randn(len(near_idx), 3, generator=g) * self.sigma[near_idx, None]
         uniform = (torch.rand(self.n_uniform, 3, generator=g) * 2 - 1) * self.box
-        return xs, torch.cat([near, uniform])
+        if self.normals is None:
+            return xs, torch.cat([near, uniform])
+        return xs, torch.cat([near, uniform]), self.normals[pick]
 
 
 def loader(ds: StepBatches) -> DataLoader:

@@ -43,7 +43,7 @@ class FieldModule(L.LightningModule):
         self.history: list[dict] = []
 
     def training_step(self, batch, batch_idx):
-        xs, xv = batch
+        xs, xv, *normals = batch
         x = torch.cat([xs, xv]).requires_grad_(True)
         with torch.enable_grad():
             sdf, mf = self.net(x)
@@ -54,6 +54,7 @@ class FieldModule(L.LightningModule):
             xs=xs, xv=x[b:], sdf_s=sdf[:b], sdf_v=sdf[b:], grad_s=grad[:b], grad_v=grad[b:],
             mf_v=mf[b:] if self.medial_field else None, grad_mf_v=grad_mf[b:] if self.medial_field else None,
             sdf_fn=self.net.sdf_only, progress=self.global_step / max(1, self.steps - 1),
+            normals_s=normals[0] if normals else None,
         )
         values = {name: fn(t, cfg) for name, fn, cfg in self.terms}
         total = sum(cfg.weight * values[name] for name, _, cfg in self.terms)

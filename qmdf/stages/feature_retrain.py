@@ -48,7 +48,7 @@ class FeatureRetrain(Stage):
         from qmdf.fields.field import Field
         from qmdf.fields.module import FieldModule
         from qmdf.geometry.bisectors import bisector_samples
-        from qmdf.stages.train import fit
+        from qmdf.stages.train import fit, training_normals
 
         cfg: FeatureRetrainConfig = ctx.cfg
         field = ctx.load("field")
@@ -59,7 +59,8 @@ class FeatureRetrain(Stage):
         if len(feats) == 0:
             raise QmdfError("feature_detect found no feature points; lower feature_detect.dihedral_deg or raise "
                             "feature_detect.max_radius")
-        points = ctx.load("points").points
+        input_points = ctx.load("points")
+        points = input_points.points
         medial, radii = np.zeros((0, 3)), np.zeros(0)
         if cfg.bisector_weight > 0 and features.normals is not None:
             medial, radii = bisector_samples(feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing)
@@ -69,7 +70,7 @@ class FeatureRetrain(Stage):
                              sharp_weights=(cfg.weight_sdf, cfg.weight_mf), medial_points=medial, medial_radii=radii,
                              medial_weight=cfg.bisector_weight, medial_batch=cfg.bisector_batch)
         module.net.load_state_dict(field.net.state_dict())
-        device = fit(ctx, train_cfg, module, points, cfg.steps)
+        device = fit(ctx, train_cfg, module, points, cfg.steps, training_normals(ctx, train_cfg, input_points))
         out = Field(module.net.cpu(), ctx.load("normalization"), field.meta, device="cpu")
         out.save(ctx.path("field"))
         before, after = field.evaluate(feats), out.evaluate(feats)

@@ -65,6 +65,18 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.
     return PointSet(pts, normals)
 
 
+def outward_normals(samples: PointSet, vertices: np.ndarray, faces: np.ndarray, log) -> PointSet:
+    """The samples with their face normals pointing out of the mesh: flipped when the winding turns inward
+    (negative signed volume), dropped when the winding is inconsistent (no side is "out" to trust)."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if not mesh.is_winding_consistent:
+        log.info("the mesh's face winding is inconsistent: its sampled points carry no normals")
+        return PointSet(samples.points)
+    return PointSet(samples.points, -samples.normals) if mesh.volume < 0 else samples
+
+
 @register_stage("sample")
 class Sample(Stage):
     """Read the input, normalise it into the unit box, sample a mesh, apply the configured degradations."""
@@ -73,7 +85,7 @@ class Sample(Stage):
     config_deps = ("seed", "input")
     outputs = {"points": POINTS, "clean_points": POINTS, "normalization": NORMALIZATION}
     optional_outputs = {"surface": MESH}
-    version = "1"
+    version = "2"  # 2: a mesh's sample normals point outward (or are dropped)
 
     def fingerprint(self, ctx: StageContext) -> str:
         inp = ctx.settings.input
@@ -91,7 +103,7 @@ class Sample(Stage):
         unit = PointSet(norm.to_unit(geom.points.points), geom.points.normals)
         rng = ctx.rng()
         if geom.is_mesh:
-            clean = sample_surface(unit.points, geom.faces, ctx.cfg.n_points, rng)
+            clean = outward_normals(sample_surface(unit.points, geom.faces, ctx.cfg.n_points, rng), unit.points, geom.faces, ctx.log)
             ctx.save("surface", _trimesh(unit.points, geom.faces))
             what = f"mesh with {len(geom.points)} vertices, {len(geom.faces)} faces; sampled {len(clean)} points"
         else:

@@ -82,10 +82,11 @@ class Train(Stage):
         from qmdf.fields.module import FieldModule
 
         cfg: TrainConfig = ctx.cfg
-        points = ctx.load("points").points
+        input_points = ctx.load("points")
+        points = input_points.points
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         module = FieldModule(cfg.backbone, params, cfg.losses, cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps)
-        device = fit(ctx, cfg, module, points, cfg.steps)
+        device = fit(ctx, cfg, module, points, cfg.steps, training_normals(ctx, cfg, input_points))
         field = Field(module.net.cpu(), ctx.load("normalization"),
                       {"backbone": cfg.backbone, "backbone_params": params}, device="cpu")
         field.save(ctx.path("field"))
@@ -100,9 +101,19 @@ class Train(Stage):
         ctx.log.info("trained %d steps on %d points; final total loss %.4g", cfg.steps, len(points), final.get("loss/total", float("nan")))
 
 
-def fit(ctx: StageContext, cfg: TrainConfig, module, points, steps: int) -> str:
+def training_normals(ctx: StageContext, cfg: TrainConfig, points):
+    """The input points' normals when the ``normal`` loss is on; None (with a warning) when they have none."""
+    if float((cfg.losses.get("normal") or {}).get("weight", 0.0)) <= 0:
+        return None
+    if points.normals is None:
+        ctx.log.warning("train.losses.normal is on but the input points carry no normals: the term does nothing")
+    return points.normals
+
+
+def fit(ctx: StageContext, cfg: TrainConfig, module, points, steps: int, normals=None) -> str:
     """Train ``module`` for ``steps`` with Lightning in the stage's work folder (checkpoints, resume, loggers);
-    returns the device it ran on. Used by train and by feature_retrain."""
+    returns the device it ran on. ``normals``: the points' outward normals, for the ``normal`` loss. Used by
+    train and by feature_retrain."""
     import gc
     import warnings
 
@@ -119,7 +130,8 @@ def fit(ctx: StageContext, cfg: TrainConfig, module, points, steps: int) -> str:
     last = work / "last.ckpt"
     resume = str(last) if cfg.resume and last.exists() else None
     done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
-    data = StepBatches(points, steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed, start=done)
+    data = StepBatches(points, steps, cfg.surface_batch, cfg.volume_batch, cfg.uniform_fraction, ctx.seed, start=done,
+                       normals=normals)
     checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
                                                      every_n_train_steps=cfg.checkpoint_every)
     show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
