@@ -148,10 +148,21 @@ def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path, caplog):
     above = field.evaluate(np.c_[xy, np.full(len(xy), 0.06)])["sdf"]
     below = field.evaluate(np.c_[xy, np.full(len(xy), -0.06)])["sdf"]
     assert np.mean(mid < 0) > 0.95 and np.mean(above > 0.02) > 0.95 and np.mean(below > 0.02) > 0.95
-    assert res.load("training")["final_losses"]["loss/normal"] < 0.05
+    history = res.load("training")["history"]
+    assert history[-1]["loss/normal"] < 0.1 < history[0]["loss/normal"]  # 1 - cos: the gradients turned to the normals
     # no normals to follow (a point file without them): the term is off, with a warning
     pts = tmp_path / "plate.xyz"
     np.savetxt(pts, res.load("points").points)
     with caplog.at_level("WARNING"):
         run(compose_cfg, tmp_path, f"input.path={pts}", "train.steps=2", "train.losses.normal.weight=100", name="cloud")
     assert "carry no normals" in caplog.text
+
+
+def test_same_seed_same_field(compose_cfg, tmp_path):
+    """The initial weights are seeded too: two trainings with one seed give the same field, another seed another."""
+    fields = {}
+    for name, seed in (("a", 3), ("b", 3), ("c", 4)):
+        res = run(compose_cfg, tmp_path, "train.steps=5", "cache.enabled=false", f"seed={seed}", name=name)
+        fields[name] = torch.load(res.path("field"), weights_only=True)["state_dict"]
+    diff = {k: max((fields[k][p] - fields["a"][p]).abs().max().item() for p in fields["a"]) for k in "bc"}
+    assert diff["b"] == 0.0 and diff["c"] > 1e-3, diff

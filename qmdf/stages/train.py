@@ -85,6 +85,7 @@ class Train(Stage):
         input_points = ctx.load("points")
         points = input_points.points
         params = dict(cfg.backbones.get(cfg.backbone) or {})
+        torch.manual_seed(ctx.seed)  # the initial weights (and Fourier frequencies) too: the same seed, the same field
         module = FieldModule(cfg.backbone, params, cfg.losses, cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps)
         device = fit(ctx, cfg, module, points, cfg.steps, training_normals(ctx, cfg, input_points))
         field = Field(module.net.cpu(), ctx.load("normalization"),
