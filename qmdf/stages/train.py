@@ -73,7 +73,7 @@ class Train(Stage):
     Config = TrainConfig
     inputs = {"points": POINTS, "normalization": NORMALIZATION}
     outputs = {"field": FIELD, "training": JSON}
-    version = "1"
+    version = "2"  # 2: the initial weights are seeded
 
     def run(self, ctx: StageContext) -> None:
         import torch
