@@ -84,7 +84,8 @@ def offsurface(t: Terms, cfg: OffSurfaceConfig) -> torch.Tensor:
 @dataclass
 class NormalConfig:
     weight: float = param(0.0, ge=0, doc="mean (1 - cos(grad sdf, n)) at the input points with outward normals "
-                                         "(SIREN: 1e2); 0: raw points, as the paper. Needs sample.normals")
+                                         "(SIREN: 1e2); 0: raw points, as the paper. Reads a mesh's face normals (turned "
+                                         "outward) or a point file's; does nothing on points without normals")
 
 
 @register_loss("normal", NormalConfig)

@@ -81,7 +81,8 @@ class NoiseConfig:
 
 @register_degradation("noise", NoiseConfig)
 def noise(points: PointSet, cfg: NoiseConfig, rng: np.random.Generator) -> PointSet:
-    """Gaussian noise on every coordinate; normals are left as they were (they are never used for fitting)."""
+    """Gaussian noise on every coordinate; normals are left as they were (clean: turn
+    train.losses.normal off to simulate a raw noisy scan)."""
     sigma = cfg.sigma * points.bbox_diagonal
     return points.with_points(points.points + rng.normal(0.0, sigma, size=points.points.shape))
 
