@@ -257,6 +257,8 @@ class Pipeline:
             record["artifacts"][name] = {
                 "path": f"{step.dirname}/{rel}", "kind": kind.name, "sha256": digest, "bytes": path.stat().st_size,
             }
+        if (final_dir / "notes.json").exists():
+            record["notes"] = json.loads((final_dir / "notes.json").read_text())
         if status == "ran":
             log.info("[%s] done in %.2f s", step.name, seconds)
         return record
@@ -270,6 +272,8 @@ class Pipeline:
         ctx.stage_dir = scratch
         try:
             step.stage.run(ctx)
+            if ctx.notes:
+                (scratch / "notes.json").write_text(json.dumps(ctx.notes, indent=2, default=str) + "\n")
             missing = [n for n in step.stage.outputs if n not in ctx.written or not ctx.written[n].exists()]
             if missing:
                 raise PipelineError(f"stage '{step.name}' finished without writing: {', '.join(missing)}")

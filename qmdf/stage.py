@@ -95,6 +95,9 @@ class StageContext:
     written: dict[str, Path] = field(default_factory=dict)
     #: typed settings of the other stages named in the stage's config_deps (feature_retrain reads train's)
     sections: Mapping[str, Any] = field(default_factory=dict)
+    #: what the stage decided that a reader of the manifest should see (train's supervision route); stored as
+    #: notes.json in the stage folder, so a cached result carries it too
+    notes: dict = field(default_factory=dict)
 
     @property
     def seed(self) -> int:

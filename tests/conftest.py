@@ -14,7 +14,8 @@ DATA = REPO.parent / "shared" / "data"
 
 #: Overrides that keep every CLI run in the tests small and fast.
 FAST = ["input.shape_resolution=32", "sample.n_points=2000", "train.steps=3", "train.surface_batch=256",
-        "train.volume_batch=256", "train.backbones.mlp.width=32", "train.picture=false", "cover.resolution=32",
+        "train.volume_batch=256", "train.backbone=mlp", "train.backbones.mlp.width=32", "train.volume_samples=5000",
+        "train.picture=false", "cover.resolution=32",
         "cover.eps=0.05", "contract.iterations=5", "export.reconstruction_resolution=24", "export.picture=false",
         "evaluate.samples=500", "evaluate.resolution=24", "evaluate.picture=false"]
 

@@ -191,7 +191,7 @@ def test_manifest_records_every_artifact(compose_cfg, tmp_path):
     m = json.loads((res.run_dir / "manifest.json").read_text())
     assert m["status"] == "complete"
     arts = m["stages"][0]["artifacts"]
-    assert set(arts) == {"points", "clean_points", "normalization", "surface"}
+    assert set(arts) == {"points", "clean_points", "normalization", "surface", "input_info"}
     for a in arts.values():
         path = res.run_dir / a["path"]
         assert path.stat().st_size == a["bytes"] and len(a["sha256"]) == 64

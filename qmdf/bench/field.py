@@ -35,7 +35,9 @@ class Case:
 
 def default_cases(shapes, backbones) -> list[Case]:
     cases = [Case(s, s, b) for s in shapes for b in backbones]
-    cases.append(Case("torus, no pinning", "torus", backbones[0], ["train.losses.mf_maximal.weight=0"]))
+    cases.append(Case("torus, paper route", "torus", "mlp", ["train.supervision=paper"]))
+    cases.append(Case("torus, paper, no pinning", "torus", "mlp",
+                      ["train.supervision=paper", "train.paper_losses.mf_maximal.weight=0"]))
     cases.append(Case("cut cyclide, MF", "cyclide", backbones[0], ["+experiment=cut_cyclide"]))
     cases.append(Case("cut cyclide, w/o MF", "cyclide", backbones[0], ["+experiment=cut_cyclide", "train.medial_field=false"]))
     return cases

@@ -83,6 +83,12 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
         if metrics is not None:
             mm = json.loads(metrics.read_text())
             row.update(cd=mm["chamfer"], hd=mm["hausdorff"], chi=mm["chi"], smoothness=mm["boundary_smoothness"])
+            quality = mm.get("field") or {}
+            row.update(sign=quality.get("sign_accuracy"), grad_inside=quality.get("grad_sdf_inside"))
+        training = next((run_dir / s["artifacts"]["training"]["path"] for s in m.get("stages", [])
+                         if s["name"] == "train" and "training" in s["artifacts"]), None)
+        if training is not None:
+            row["route"] = (json.loads(training.read_text()).get("supervision") or {}).get("route")
     else:
         row["status"] = "failed"
         row["note"] = (stderr.strip().splitlines() or ["no output"])[-1][:120]
@@ -99,18 +105,21 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def print_table(rows: list[dict]) -> None:
-    head = f"{'model':<28}{'category':<26}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}{'exp':>5}{'C_avg':>7}" \
-           f"{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}  stages (s) / note"
+    head = f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}" \
+           f"{'exp':>5}{'C_avg':>7}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}  stages (s) / note"
     print(head)
     print("-" * len(head))
     for r in rows:
         paper = f"{_fmt(r.get('paper_cd'), 1e3)}/{_fmt(r.get('paper_hd'), 1e3)}/{_fmt(r.get('paper_chi'))}" if "paper_cd" in r else "-"
         stages = " ".join(f"{k}={v:.1f}" for k, v in (r.get("stage_s") or {}).items())
-        print(f"{r['model']:<28}{r['category']:<26}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
+        print(f"{r['model']:<28}{r['category']:<26}{r.get('route') or '-':<16}{_fmt(r.get('sign'), 1, 4):>7}"
+              f"{_fmt(r.get('grad_inside'), 1, 3):>7}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
               f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}{paper:>18}"
               f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  {stages}{' | ' + r['note'] if r.get('note') else ''}")
     print("\nCD / HD: exact point-to-surface distances, (mean R->G + mean G->R)/2 and the larger max, unit box "
-          "(see qmdf.geometry.metrics.CD_DEFINITION); exp: chi the input's genus implies for its medial axis.")
+          "(see qmdf.geometry.metrics.CD_DEFINITION); exp: chi the input's genus implies for its medial axis.\n"
+          "route: the field's supervision; sign: share of 100k volume samples in the unit box whose learned sign agrees "
+          "with the reference mesh's winding number; |grad|: mean |grad sdf| inside (1 is metric).")
 
 
 def main(argv: list[str]) -> int:

@@ -76,13 +76,18 @@ class GridConfig:
     levels: int = param(8, ge=1, le=16, doc="resolution levels of the encoding")
     features: int = param(2, ge=1, le=8, doc="features per level")
     base_resolution: int = param(8, ge=2, doc="cells per side at the coarsest level")
-    finest_resolution: int = param(96, ge=2, doc="cells per side at the finest level")
-    log2_table_size: int = param(17, ge=8, le=24, doc="entries per level; finer levels are hashed into it")
+    finest_resolution: int = param(80, ge=2, doc="cells per side at the finest level")
+    log2_table_size: int = param(20, ge=8, le=24, doc="entries per level; finer levels are hashed into it. 2^20 keeps "
+                                 "every level dense up to 100 cells: hash collisions were the teacup's q noise (genus "
+                                 "of the covering 555 at 2^17 and 96 cells, 12 dense at 80)")
     bound: float = param(0.6, gt=0, doc="the grid covers [-bound, bound]^3 (volume samples reach 0.6)")
     width: int = param(64, ge=8, doc="hidden width of the MLP after the encoding")
     depth: int = param(2, ge=1, doc="hidden layers of that MLP")
     softplus_beta: float = param(100.0, gt=0)
     geometric_init: bool = param(True, doc="the MLP reads the coordinates too and starts from a sphere's SDF")
+    medial_width: int = param(64, ge=0, doc="the medial field from its own smooth MLP of the coordinates (this width, 3 "
+                              "layers) instead of the grid's features: the grid follows every bump's medial branch, and "
+                              "on the bunny its mf was blocks and q a maze (covering genus ~1500); 0: from the grid")
 
 
 #: Spatial-hash primes of Instant-NGP (the first is 1 so that a dense level needs no hashing).

@@ -27,19 +27,25 @@ class Terms:
     xv: torch.Tensor  # volume points (B, 3)
     sdf_s: torch.Tensor
     sdf_v: torch.Tensor
-    grad_s: torch.Tensor
-    grad_v: torch.Tensor
+    grad_s: torch.Tensor | None  # None unless an active term needs it (see register_loss's ``needs``)
+    grad_v: torch.Tensor | None
     mf_v: torch.Tensor | None
     grad_mf_v: torch.Tensor | None
     sdf_fn: Callable[[torch.Tensor], torch.Tensor]
     progress: float  # 0 at the first step, 1 at the last
     normals_s: torch.Tensor | None = None  # outward unit normals at the surface points, when the input has them
+    sdf_target_v: torch.Tensor | None = None  # signed distance at the volume points, NaN where unknown
+    mf_target_v: torch.Tensor | None = None  # medial radius at the volume points (on medial rays), NaN elsewhere
     cache: dict = field(default_factory=dict)
 
 
-def register_loss(name: str, config: type, medial: bool = False):
+def register_loss(name: str, config: type, medial: bool = False, needs: tuple[str, ...] = ()):
+    """``needs``: the gradients the term reads ("sdf", "mf"); a step computes them (with a double backward) only
+    when an active term needs them, which is most of a step's cost on the CPU."""
+
     def deco(fn):
         fn.medial = medial
+        fn.needs = needs
         return LOSSES.add(name, fn, config)
 
     return deco
@@ -62,7 +68,7 @@ class EikonalConfig:
                                            "100 here: a more metric SDF inside, see bench field)")
 
 
-@register_loss("eikonal", EikonalConfig)
+@register_loss("eikonal", EikonalConfig, needs=("sdf",))
 def eikonal(t: Terms, cfg: EikonalConfig) -> torch.Tensor:
     """A metric SDF everywhere, deep inside included."""
     g = torch.cat([t.grad_s, t.grad_v])
@@ -77,8 +83,52 @@ class OffSurfaceConfig:
 
 @register_loss("offsurface", OffSurfaceConfig)
 def offsurface(t: Terms, cfg: OffSurfaceConfig) -> torch.Tensor:
-    """No zero level set away from the points."""
-    return torch.exp(-cfg.alpha * t.sdf_v.abs()).mean()
+    """No zero level set away from the points: on the volume samples without a distance target (a target says
+    better, and near the surface this term would fight it)."""
+    free = _unknown(t.sdf_target_v, t.sdf_v)
+    if not free.any():
+        return t.sdf_v.sum() * 0.0
+    return torch.exp(-cfg.alpha * t.sdf_v[free].abs()).mean()
+
+
+def _unknown(target: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
+    if target is None:
+        return torch.ones_like(like, dtype=torch.bool)
+    return ~torch.isfinite(target)
+
+
+@dataclass
+class SdfTargetConfig:
+    weight: float = param(300.0, ge=0, doc="mean |sdf - d| at the volume samples with a signed distance target "
+                                           "(the route's: winding-number sign times the distance to the input)")
+
+
+@register_loss("sdf_target", SdfTargetConfig)
+def sdf_target(t: Terms, cfg: SdfTargetConfig) -> torch.Tensor:
+    """Not in the paper: the sign and the metric inside come from the input (mesh or points), not from the
+    eikonal term alone, which leaves cavities filled and |sdf| short of the depth."""
+    return _l1_where_known(t.sdf_v, t.sdf_target_v)
+
+
+def _l1_where_known(value: torch.Tensor, target: torch.Tensor | None) -> torch.Tensor:
+    """mean |value - target| over the samples whose target is known (finite); 0 when none is."""
+    known = ~_unknown(target, value)
+    if not known.any():
+        return value.sum() * 0.0
+    return (value[known] - target[known]).abs().mean()
+
+
+@dataclass
+class MfTargetConfig:
+    weight: float = param(300.0, ge=0, doc="mean |mf - r| on the medial rays (r: the radius of the medial ball "
+                                           "behind the ray's surface point)")
+
+
+@register_loss("mf_target", MfTargetConfig, medial=True)
+def mf_target(t: Terms, cfg: MfTargetConfig) -> torch.Tensor:
+    """Not in the paper: along the ray from a surface point to its medial ball the medial field is that ball's
+    radius, which pins mf where the DMF terms admit any value between |sdf| and r."""
+    return _l1_where_known(t.mf_v, t.mf_target_v)
 
 
 @dataclass
@@ -88,7 +138,7 @@ class NormalConfig:
                                          "outward) or a point file's; does nothing on points without normals")
 
 
-@register_loss("normal", NormalConfig)
+@register_loss("normal", NormalConfig, needs=("sdf",))
 def normal(t: Terms, cfg: NormalConfig) -> torch.Tensor:
     """Not in the paper: the SDF's gradient follows the input's outward normals. Without them a thin plate's
     two faces, 0.02 apart, are fitted as one face of a slab ten times thicker (measured on ABC 00000329)."""
@@ -113,7 +163,7 @@ class MfOrthoConfig:
     weight: float = param(0.03, ge=0, doc="mean (grad mf . grad sdf)^2 (DMF: 0.03)")
 
 
-@register_loss("mf_ortho", MfOrthoConfig, medial=True)
+@register_loss("mf_ortho", MfOrthoConfig, medial=True, needs=("sdf", "mf"))
 def mf_ortho(t: Terms, cfg: MfOrthoConfig) -> torch.Tensor:
     """mf is constant along the normal rays (paper Eq. 3)."""
     return (t.grad_mf_v * t.grad_v).sum(-1).pow(2).mean()
@@ -134,7 +184,7 @@ class MfConsisConfig:
                                             "the maximal ball harder against mf_maximal's push, see bench field)")
 
 
-@register_loss("mf_consis", MfConsisConfig, medial=True)
+@register_loss("mf_consis", MfConsisConfig, medial=True, needs=("sdf",))
 def mf_consis(t: Terms, cfg: MfConsisConfig) -> torch.Tensor:
     """mf is the radius at the projected medial point (paper Eq. 5)."""
     return (t.sdf_fn(medial_projection(t)).abs() - t.mf_v).pow(2).mean()
@@ -157,6 +207,20 @@ def mf_maximal(t: Terms, cfg: MfMaximalConfig) -> torch.Tensor:
     return -t.mf_v[inside].mean()
 
 
+#: The paper's route (raw points alone): the eikonal term makes the SDF metric and the DMF terms carry mf.
+PAPER_TERMS = ("surface", "eikonal", "offsurface", "normal", "mf_max", "mf_ortho", "mf_consis", "mf_maximal")
+
+#: The supervised routes (mesh, oriented or raw points): the targets carry sign, metric and mf; the terms that
+#: differentiate the field (eikonal, mf_ortho, mf_consis), most of a step's cost, are off (see README: measured).
+SUPERVISED_WEIGHTS = {"surface": 3000.0, "eikonal": 0.0, "offsurface": 100.0, "sdf_target": 300.0, "normal": 0.0,
+                      "mf_max": 100.0, "mf_ortho": 0.0, "mf_consis": 0.0, "mf_maximal": 0.0, "mf_target": 300.0}
+
+
 def default_losses() -> dict:
-    return {name: {"weight": LOSSES.get(name).config().weight} for name in
-            ("surface", "eikonal", "offsurface", "normal", "mf_max", "mf_ortho", "mf_consis", "mf_maximal")}
+    """train.losses: the supervised routes' terms and weights."""
+    return {name: {"weight": w} for name, w in SUPERVISED_WEIGHTS.items()}
+
+
+def paper_losses() -> dict:
+    """train.paper_losses: the paper route's terms, with their configs' default weights."""
+    return {name: {"weight": LOSSES.get(name).config().weight} for name in PAPER_TERMS}

@@ -6,7 +6,7 @@ import math
 import torch
 from torch import nn
 
-from qmdf.fields.backbones import BACKBONES
+from qmdf.fields.backbones import BACKBONES, MLP, MLPConfig
 
 
 class MedialFieldNet(nn.Module):
@@ -22,6 +22,11 @@ class MedialFieldNet(nn.Module):
             # SAL's geometric initialisation: the trunk + sdf head start close to |x| - init_radius
             nn.init.normal_(self.sdf_head.weight, math.sqrt(math.pi) / math.sqrt(w), 1e-4)
             nn.init.constant_(self.sdf_head.bias, -init_radius)
+        medial_width = int(getattr(backbone_cfg, "medial_width", 0) or 0)
+        self.medial_trunk = None
+        if medial_width:  # a smooth trunk of its own for mf (see GridConfig.medial_width)
+            self.medial_trunk = MLP(MLPConfig(width=medial_width, depth=3, geometric_init=False))
+            w = medial_width
         self.mf_inner = self._head(w, head_width)
         self.mf_outer = self._head(w, head_width)
 
@@ -35,7 +40,8 @@ class MedialFieldNet(nn.Module):
         """(sdf, mf), each (N,)."""
         h = self.trunk(x)
         sdf = self.sdf_head(h).squeeze(-1)
-        mf = torch.where(sdf < 0, self.mf_inner(h).squeeze(-1), self.mf_outer(h).squeeze(-1))
+        hm = h if self.medial_trunk is None else self.medial_trunk(x)
+        mf = torch.where(sdf < 0, self.mf_inner(hm).squeeze(-1), self.mf_outer(hm).squeeze(-1))
         return sdf, mf
 
     def sdf_only(self, x: torch.Tensor) -> torch.Tensor:

@@ -81,8 +81,8 @@ class NoiseConfig:
 
 @register_degradation("noise", NoiseConfig)
 def noise(points: PointSet, cfg: NoiseConfig, rng: np.random.Generator) -> PointSet:
-    """Gaussian noise on every coordinate; normals are left as they were (clean: turn
-    train.losses.normal off to simulate a raw noisy scan)."""
+    """Gaussian noise on every coordinate; each point keeps its normal (the clean surface's: add drop_normals
+    to simulate a raw scan)."""
     sigma = cfg.sigma * points.bbox_diagonal
     return points.with_points(points.points + rng.normal(0.0, sigma, size=points.points.shape))
 
@@ -116,3 +116,14 @@ def missing_region(points: PointSet, cfg: MissingRegionConfig, rng: np.random.Ge
     for c in centers:
         keep &= np.linalg.norm(p - c, axis=1) > r
     return points.subset(keep)
+
+
+@dataclass
+class DropNormalsConfig:
+    enabled: bool = param(True, doc="forget the points' normals: a raw scan (train then estimates and orients them)")
+
+
+@register_degradation("drop_normals", DropNormalsConfig)
+def drop_normals(points: PointSet, cfg: DropNormalsConfig, rng: np.random.Generator) -> PointSet:
+    """Raw input: the points without their normals."""
+    return PointSet(points.points) if cfg.enabled else points

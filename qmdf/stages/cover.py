@@ -16,6 +16,9 @@ from qmdf.stage import Stage, StageContext, register_stage
 @dataclass
 class CoverConfig:
     eps: float = param(0.005, gt=0, doc="the isovalue of Q-MDF (paper: 0.005)")
+    eps_from_field: bool = param(True, doc="raise eps to the field's noise floor on its axis (the 99th percentile of q's "
+                                 "lowest value along train's medial rays), so the covering has no holes where q's valley "
+                                 "stays above eps; false: eps as given")
     resolution: int = param(256, ge=16, le=1024, doc="grid nodes along the unit box (paper: 256)")
     coarse_step: int = param(8, ge=1, doc="first-pass spacing in grid cells; refined by halves near the covering")
     lipschitz: float = param(2.0, ge=1, doc="assumed bound on |grad q| when deciding where to refine (safety margin)")
@@ -102,11 +105,20 @@ class Cover(Stage):
 
     Config = CoverConfig
     inputs = {"field": FIELD}
+    optional_inputs = {"training": JSON}
     outputs = {"covering": MESH, "covering_stats": JSON}
 
     def run(self, ctx: StageContext) -> None:
+        import dataclasses
+
         cfg: CoverConfig = ctx.cfg
+        floor = (ctx.load("training").get("axis_q") or {}).get("p99") if ctx.has("training") else None
+        if cfg.eps_from_field and floor is not None and floor > cfg.eps:
+            ctx.log.info("cover.eps %.4g raised to %.4g, the field's noise floor on its axis (cover.eps_from_field)",
+                         cfg.eps, floor)
+            cfg = dataclasses.replace(cfg, eps=float(floor))
         mesh, stats = build_covering(ctx.load("field"), cfg, ctx.log)
+        stats["eps_requested"], stats["axis_q_p99"] = ctx.cfg.eps, floor
         if not stats["watertight"]:
             ctx.log.warning("the covering is not watertight; tetrahedralize will refuse it")
         ctx.save("covering", mesh)

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import JSON, MAT, MESH, POINTS, TETS
+from qmdf.artifacts import FIELD, JSON, MAT, MESH, POINTS, TETS
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -16,6 +16,7 @@ class EvaluateConfig:
     resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction (sampling, pictures, mesh output)")
     picture: bool = param(True, doc="write reconstruction.png coloured by the distance to the reference")
     fold_deg: float = param(150.0, gt=90, lt=180, doc="a closed membrane's boundary: edges where the normals turn by more than this")
+    field_samples: int = param(100_000, ge=0, doc="volume samples for the field's sign accuracy against the reference mesh (0: skip)")
 
 
 @register_stage("evaluate")
@@ -24,10 +25,11 @@ class Evaluate(Stage):
 
     Config = EvaluateConfig
     inputs = {"mat": MAT}
-    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS, "reconstruction": MESH}
+    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS, "reconstruction": MESH,
+                       "field": FIELD}
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
-    version = "1"
+    version = "2"  # 2: the field's sign accuracy and metric inside
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.evaluate import score_mat
@@ -50,6 +52,12 @@ class Evaluate(Stage):
             metrics["chi_membrane"] = metrics["chi"]
             metrics["chi"] = euler_tetrahedral(len(verts), tets)
             metrics["chi_rule"] = "V - E + F - C of the contracted tetrahedral covering"
+        if ctx.has("surface") and ctx.has("field") and ctx.cfg.field_samples:
+            from qmdf.fields.quality import field_quality
+
+            metrics["field"] = field_quality(ctx.load("field"), ref_v, ref_f, ctx.cfg.field_samples, ctx.seed)
+            ctx.log.info("field: sign accuracy %.4f, mean |grad sdf| inside %s", metrics["field"]["sign_accuracy"],
+                         metrics["field"]["grad_sdf_inside"])
         ctx.save("metrics", metrics)
         if given is None:
             ctx.save("reconstruction", recon)

@@ -1,4 +1,4 @@
-"""``export``: the medial membrane as a MAT (radius per vertex from the SDF), in the unit box and in the
+"""``export``: the medial membrane as a MAT (radius per vertex from the input, ``qmdf.medial.radii``), in the unit box and in the
 input's own units: ``.ma`` (Q-MAT / MATTopo format), PLY with a ``radius`` vertex property, OBJ; and the
 surface the MAT reconstructs (union of its primitives' envelopes), meshed."""
 from __future__ import annotations
@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import FIELD, MAT, MESH, NORMALIZATION, file_kind
+from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_kind
+from qmdf.medial.radii import RADIUS_SOURCES, mat_radii
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -16,15 +17,27 @@ from qmdf.stage import Stage, StageContext, register_stage
 class ExportConfig:
     reconstruction_resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction; 0 skips it")
     picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
+    radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius: data (distance to the input mesh or "
+                        "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data")
 
 
-def membrane_to_mat(membrane, field):
-    """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius |sdf| (unit box)."""
+def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None):
+    """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius from ``radius``."""
     from qmdf.geometry.ma_format import MedialMesh
 
     v = np.asarray(membrane.vertices, np.float64)
-    radii = np.abs(field.evaluate(v)["sdf"]).astype(np.float64)
+    radii = mat_radii(v, radius, field, mesh, points)
     return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
+
+
+def input_data(ctx: StageContext):
+    """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else the input points
+    (what the method saw, never the clean reference of a simulated scan)."""
+    info = ctx.load("input_info") if ctx.has("input_info") else {}
+    if ctx.has("surface") and info.get("kind") == "mesh" and not info.get("degradations"):
+        surface = ctx.load("surface")
+        return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
+    return None, ctx.load("points").points if ctx.has("points") else None
 
 
 @register_stage("export")
@@ -33,7 +46,7 @@ class Export(Stage):
 
     Config = ExportConfig
     inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
-    optional_inputs = {"covering": MESH}
+    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON}
     outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
                "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"), "reconstruction": MESH}
 
@@ -42,7 +55,8 @@ class Export(Stage):
         from qmdf.geometry.ma_format import MedialMesh, write_ma, write_obj, write_ply_with_radius
 
         norm = ctx.load("normalization")
-        mat = membrane_to_mat(ctx.load("membrane"), ctx.load("field"))
+        mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
+        mat = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import FIELD, JSON, NORMALIZATION, POINTS
+from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS
 from qmdf.errors import QmdfError
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -39,6 +39,7 @@ class FeatureRetrain(Stage):
 
     Config = FeatureRetrainConfig
     inputs = {"field": FIELD, "points": POINTS, "normalization": NORMALIZATION, "feature_points": POINTS}
+    optional_inputs = {"surface": MESH, "input_info": JSON}  # the supervision route, as train's
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
 
@@ -48,7 +49,8 @@ class FeatureRetrain(Stage):
         from qmdf.fields.field import Field
         from qmdf.fields.module import FieldModule
         from qmdf.geometry.bisectors import bisector_samples
-        from qmdf.stages.train import fit, training_normals
+        from qmdf.fields.data import StepSampler
+        from qmdf.stages.train import axis_q_stats, fit, route_losses, supervise
 
         cfg: FeatureRetrainConfig = ctx.cfg
         field = ctx.load("field")
@@ -59,25 +61,28 @@ class FeatureRetrain(Stage):
         if len(feats) == 0:
             raise QmdfError("feature_detect found no feature points; lower feature_detect.dihedral_deg or raise "
                             "feature_detect.max_radius")
-        input_points = ctx.load("points")
-        points = input_points.points
+        points = ctx.load("points").points
         medial, radii = np.zeros((0, 3)), np.zeros(0)
         if cfg.bisector_weight > 0 and features.normals is not None:
             medial, radii = bisector_samples(feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing)
         train_cfg = dataclasses.replace(ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False)
-        module = FieldModule(field.meta["backbone"], field.meta["backbone_params"], train_cfg.losses,
-                             train_cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps, feature_points=feats,
+        sup = supervise(ctx, train_cfg)
+        sampler = StepSampler(sup, train_cfg.surface_batch, train_cfg.volume_batch, ctx.seed)
+        module = FieldModule(field.meta["backbone"], field.meta["backbone_params"], route_losses(train_cfg, sup.route),
+                             train_cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps, sampler, train_cfg.ridge_every,
+                             train_cfg.ridge_start, feature_points=feats,
                              sharp_weights=(cfg.weight_sdf, cfg.weight_mf), medial_points=medial, medial_radii=radii,
                              medial_weight=cfg.bisector_weight, medial_batch=cfg.bisector_batch)
         module.net.load_state_dict(field.net.state_dict())
-        device = fit(ctx, train_cfg, module, points, cfg.steps, training_normals(ctx, train_cfg, input_points))
+        device = fit(ctx, train_cfg, module, cfg.steps)
+        axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and train_cfg.medial_field else None
         out = Field(module.net.cpu(), ctx.load("normalization"), field.meta, device="cpu")
         out.save(ctx.path("field"))
         before, after = field.evaluate(feats), out.evaluate(feats)
         stats = {"steps": cfg.steps, "feature_points": int(len(feats)), "bisector_samples": int(len(medial)), "device": device,
                  "feature_abs_sdf_before": float(abs(before["sdf"]).mean()), "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
                  "feature_mf_before": float(abs(before["mf"]).mean()), "feature_mf_after": float(abs(after["mf"]).mean()),
-                 "history": module.history}
+                 "history": module.history, "axis_q": axis}
         ctx.save("training", stats)
         ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e; %d bisector samples%s",
                      len(feats), stats["feature_abs_sdf_before"], stats["feature_abs_sdf_after"], stats["feature_mf_before"],

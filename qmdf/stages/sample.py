@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from qmdf import schema
-from qmdf.artifacts import MESH, NORMALIZATION, POINTS, file_digest
+from qmdf.artifacts import JSON, MESH, NORMALIZATION, POINTS, file_digest
 from qmdf.errors import InputError
 from qmdf.geometry.io import InputGeometry, Limits, load_geometry
 from qmdf.geometry.normalize import Normalization
@@ -83,9 +83,9 @@ class Sample(Stage):
 
     Config = SampleConfig
     config_deps = ("seed", "input")
-    outputs = {"points": POINTS, "clean_points": POINTS, "normalization": NORMALIZATION}
+    outputs = {"points": POINTS, "clean_points": POINTS, "normalization": NORMALIZATION, "input_info": JSON}
     optional_outputs = {"surface": MESH}
-    version = "2"  # 2: a mesh's sample normals point outward (or are dropped)
+    version = "3"  # 2: a mesh's sample normals point outward (or are dropped); 3: input_info
 
     def fingerprint(self, ctx: StageContext) -> str:
         inp = ctx.settings.input
@@ -120,6 +120,9 @@ class Sample(Stage):
                 f"the degradations left {len(points)} points, fewer than input.min_points={ctx.settings.input.min_points}"
             )
         ctx.save("points", points)
+        # what train's supervision may use: a degraded mesh stands for a scan, so only its points count
+        ctx.save("input_info", {"kind": "mesh" if geom.is_mesh else "points", "source": geom.source,
+                                "degradations": list(ctx.cfg.degradations), "normals": points.normals is not None})
         ctx.save("clean_points", clean)
         ctx.save("normalization", norm)
         ctx.log.info("input %s: %s; unit-box scale %.6g", geom.source, what, norm.scale)

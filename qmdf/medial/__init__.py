@@ -1,0 +1,1 @@
+"""The medial library: plain functions over arrays (and a queryable field) that the extraction stages adapt."""
