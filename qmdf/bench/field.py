@@ -5,7 +5,7 @@ own), the SDF error inside the shape against the exact SDF, |grad sdf| there (1 
 on points of the true medial axis, the paper's centredness test (Sec. 5.2.1: points inside follow -grad q
 to its local minima; mean distance of where they stop to the true axis; the paper reports 6.0e-4), and the
 Chamfer distance of the zero level set to the true surface. Also the paper's Fig. 7 (the cut Dupin cyclide,
-with and without the medial field, Chamfer to the full cyclide) and the pinning ablation (mf_maximal off).
+with and without the medial field, Chamfer to the full cyclide) and the paper route with and without pinning.
 Targets (issue 4): training < 3 min, centredness < 2e-3, Chamfer < 2e-3, all in the unit box.
 """
 from __future__ import annotations
