@@ -22,7 +22,6 @@ class FieldModule(L.LightningModule):
 
     def __init__(self, backbone: str, backbone_params: dict, losses: dict, medial_field: bool, lr: float,
                  lr_final: float, steps: int, sampler: StepSampler, ridge_every: int = 0, ridge_start: float = 0.3,
-
                  feature_points=None, sharp_weights: tuple[float, float] = (0.0, 0.0),
                  medial_points=None, medial_radii=None, medial_weight: float = 0.0, medial_batch: int = 4096):
         super().__init__()

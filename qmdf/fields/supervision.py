@@ -139,8 +139,6 @@ def _unit(n: np.ndarray) -> np.ndarray:
 
 def _mesh_outward_normals(points, normals, v, f, stats) -> np.ndarray:
     """The samples' face normals turned where the winding number is higher ahead of them than behind."""
-    from qmdf.geometry.inside import mesh_winding_number
-
     if normals is None:
         normals, _ = pca_normals(points)
     n = _unit(normals)
