@@ -124,6 +124,23 @@ def _load_tets(path: Path) -> Any:
 
 #: A tetrahedral mesh as (vertices (V, 3), tets (T, 4))
 TETS = ArtifactKind("tets", ".npz", _save_tets, _load_tets)
+def _save_grid(value: Any, path: Path) -> None:
+    inside = np.asarray(value["inside"], bool)
+    with open(path, "wb") as f:
+        np.savez_compressed(f, inside=np.packbits(inside.ravel()), shape=np.array(inside.shape),
+                            lo=np.asarray(value["lo"], np.float64), spacing=np.asarray(value["spacing"], np.float64),
+                            eps=np.float64(value["eps"]))
+
+
+def _load_grid(path: Path) -> Any:
+    with np.load(path, allow_pickle=False) as data:
+        shape = tuple(int(n) for n in data["shape"])
+        inside = np.unpackbits(data["inside"], count=int(np.prod(shape))).astype(bool).reshape(shape)
+        return {"inside": inside, "lo": data["lo"], "spacing": data["spacing"], "eps": float(data["eps"])}
+
+
+#: The grid nodes inside the covering: {"inside": (nx, ny, nz) bool, "lo": (3,), "spacing": (3,), "eps": float}
+GRID = ArtifactKind("grid", ".npz", _save_grid, _load_grid)
 #: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
 MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
 def _load_field(path: Path) -> Any:

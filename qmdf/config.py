@@ -21,11 +21,11 @@ from qmdf.schema import param
 #: as "not available in this version" instead of as unknown names.
 BUILTIN_STAGES = (
     "sample", "train", "feature_detect", "feature_retrain",
-    "cover", "tetrahedralize", "contract", "export", "evaluate",
+    "cover", "tetrahedralize", "contract", "sheet", "export", "evaluate",
 )
 # tetrahedralize is left out by default: measured on the torus, fTetWild took 160 s and the signed tet volume
 # is unbounded below (inverted tets), while the surface volume contracted in 4 s to 1e-8 from the axis.
-DEFAULT_PIPELINE = ["sample", "train", "cover", "contract", "export", "evaluate"]
+DEFAULT_PIPELINE = ["sample", "train", "cover", "contract", "sheet", "export", "evaluate"]
 
 INPUT_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".xyz", ".npy")
 

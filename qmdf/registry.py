@@ -156,6 +156,7 @@ _BUILTIN_MODULES = (
     "qmdf.stages.cover",
     "qmdf.stages.tetrahedralize",
     "qmdf.stages.contract",
+    "qmdf.stages.sheet",
     "qmdf.stages.export",
     "qmdf.stages.evaluate",
     "qmdf.stages.feature_detect",

@@ -26,14 +26,17 @@ def _decimated(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | Non
 
 def render_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | None = None,
                 title: str = "", label: str = "", cmap: str = "viridis", max_faces: int = 30000,
-                views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120))) -> Path:
-    """Shaded views of a triangle mesh, coloured by per-vertex ``values`` when given."""
+                views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)),
+                lines: tuple[tuple[np.ndarray, str], ...] = ()) -> Path:
+    """Shaded views of a triangle mesh, coloured by per-vertex ``values`` when given; ``lines``: (edges (E, 2)
+    into ``vertices``, colour) drawn over it (a medial mesh's lone edges, its seams)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+    segments = [(np.asarray(vertices, float)[np.asarray(e, np.int64).reshape(-1, 2)], colour) for e, colour in lines]
     v, f, val = _decimated(np.asarray(vertices, float), np.asarray(faces), values, max_faces)
     tri = v[f]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -47,11 +50,15 @@ def render_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, values: np.
         colors = np.tile([0.75, 0.75, 0.78, 1.0], (len(f), 1))
     colors[:, :3] *= shade[:, None]
     fig = plt.figure(figsize=(5 * len(views) + (1 if val is not None else 0), 5))
-    lo, hi = v.min(0), v.max(0)
+    every = np.concatenate([v] + [seg.reshape(-1, 3) for seg, _ in segments])
+    lo, hi = every.min(0), every.max(0)
     c, r = (lo + hi) / 2, float((hi - lo).max()) / 2
     for i, (elev, azim) in enumerate(views):
         ax = fig.add_subplot(1, len(views), i + 1, projection="3d")
         ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolor="none"))
+        for seg, colour in segments:
+            if len(seg):
+                ax.add_collection3d(Line3DCollection(seg, colors=colour, linewidths=1.2))
         ax.set_xlim(c[0] - r, c[0] + r), ax.set_ylim(c[1] - r, c[1] + r), ax.set_zlim(c[2] - r, c[2] + r)
         ax.view_init(elev, azim)
         ax.set_axis_off()

@@ -44,7 +44,7 @@ def test_errors_are_the_same_as_the_cli(tmp_path):
 
 
 def test_medial_axis_returns_the_mat_and_metrics(tmp_path):
-    chain = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]",
+    chain = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
              "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
              "evaluate.samples=2000", "evaluate.resolution=48", "evaluate.picture=false"]
     mat = qmdf.medial_axis(None, overrides(tmp_path, *chain), run_dir=tmp_path / "m")

@@ -10,7 +10,7 @@ from qmdf.geometry import ellipsoid
 from qmdf.geometry.normalize import Normalization
 from qmdf.pipeline import Pipeline
 
-CHAIN = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]",
+CHAIN = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
          "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
          "evaluate.samples=3000", "evaluate.resolution=48", "evaluate.picture=false"]
 
@@ -85,11 +85,15 @@ def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
     # q is read from the 1e-3 lattice: interpolation moves the minimum by at most half a step
     assert d.mean() < 2.5e-4 and np.percentile(d, 95) < 1e-3
     assert contraction["field_evaluations"] < 0.5 * 300 * len(membrane.vertices)  # lazily, not per iteration
-    mat = res.load("mat")
-    assert np.percentile(np.abs(mat.radii - 0.15), 99) < 1e-3  # radius from the SDF: the tube radius
+    mat = res.load("mat")  # the single sheet: the circle as a closed polyline, no faces
+    assert len(mat.faces) == 0 and len(mat.edges) == len(mat.vertices) >= 100
+    assert np.bincount(mat.edges.ravel()).tolist() == [2] * len(mat.vertices)  # every vertex on one cycle
+    assert np.percentile(TorusField().axis_distance(mat.vertices), 95) < 1e-3
+    assert np.percentile(np.abs(mat.radii - 0.15), 99) < 1e-3  # radius from the input: the tube radius
     m = res.load("metrics")
-    assert m["chi"] == 0 and m["chamfer"] < 1e-3
-    run = res.run_dir / "04_export"
+    assert m["chi"] == 0 and m["chi_rule"] == "V - E + F of the medial mesh" and m["chamfer"] < 1e-3
+    assert len(res.load("membrane_mat").faces) == len(membrane.faces)  # the membrane stays, for comparison
+    run = res.run_dir / "05_export"
     ply = trimesh.load(run / "mat_ply.ply", process=False)
     assert np.allclose(ply.metadata["_ply_raw"]["vertex"]["data"]["radius"], mat.radii, atol=1e-6)
     assert (run / "mat_input_units.ma").read_text().splitlines()[0] == f"{len(mat.vertices)} {len(mat.edges)} {len(mat.faces)}"

@@ -19,8 +19,8 @@ import numpy as np
 from qmdf.bench.child import fmt
 
 SHAPES = ("torus", "ellipsoid", "box")
-CHAIN = "pipeline.stages=[sample,analytic_field,cover,contract,export,evaluate]"
-TET_CHAIN = ["pipeline.stages=[sample,analytic_field,cover,tetrahedralize,contract,export,evaluate]", "contract.volume=tets"]
+CHAIN = "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]"
+TET_CHAIN = ["pipeline.stages=[sample,analytic_field,cover,tetrahedralize,contract,sheet,export,evaluate]", "contract.volume=tets"]
 
 
 def run_shape(shape: str, out: Path, overrides: list[str], tets: bool = False, learned: bool = False) -> dict:

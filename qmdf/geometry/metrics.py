@@ -135,6 +135,16 @@ def single_face_edges(faces: np.ndarray) -> np.ndarray:
     return uniq[counts == 1]
 
 
+def seam_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges of three or more faces: where sheets of a medial mesh meet."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    if not len(e):
+        return e
+    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    return uniq[counts >= 3]
+
+
 def fold_edges(vertices: np.ndarray, faces: np.ndarray, min_fold_deg: float = 150.0) -> np.ndarray:
     """Edges where a closed membrane folds back on itself (dihedral angle near 2*pi): the two face normals
     are nearly opposite, turning by more than ``min_fold_deg``. This is the boundary of a double covering."""

@@ -1,6 +1,6 @@
 """``analytic_field``: the exact field of a procedural shape with a known medial axis, in place of ``train``.
 
-``pipeline.stages=[sample,analytic_field,cover,tetrahedralize,contract,export,evaluate] input.shape=torus``
+``pipeline.stages=[sample,analytic_field,cover,tetrahedralize,contract,sheet,export,evaluate] input.shape=torus``
 proves the extraction on the exact answer, independently of training.
 """
 from __future__ import annotations

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import FIELD, JSON, MESH
+from qmdf.artifacts import FIELD, GRID, JSON, MESH
 from qmdf.errors import QmdfError
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -68,7 +68,7 @@ def decimate(mesh, target_faces: int):
 
 
 def build_covering(field, cfg: CoverConfig, log):
-    """The covering mesh (specks dropped, decimated) and its statistics."""
+    """The covering mesh (specks dropped, decimated), its statistics and the grid nodes inside it."""
     import trimesh
 
     from qmdf.geometry.grid import narrow_band_level_set
@@ -96,7 +96,7 @@ def build_covering(field, cfg: CoverConfig, log):
     stats["faces_before_decimation"] = faces_before
     stats.update(dropped_specks=dropped, speck_rule=f"components with < {cfg.speck_fraction:g} x the largest's faces",
                  evaluated_nodes=grid.evaluated, grid_nodes=int(np.prod(grid.values.shape)), eps=cfg.eps)
-    return mesh, stats
+    return mesh, stats, {"inside": grid.values < 0, "lo": grid.lo, "spacing": grid.spacing, "eps": cfg.eps}
 
 
 @register_stage("cover")
@@ -106,7 +106,8 @@ class Cover(Stage):
     Config = CoverConfig
     inputs = {"field": FIELD}
     optional_inputs = {"training": JSON}
-    outputs = {"covering": MESH, "covering_stats": JSON}
+    outputs = {"covering": MESH, "covering_stats": JSON, "covering_grid": GRID}
+    version = "2"  # 2: the grid nodes inside the covering (for sheet)
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
@@ -117,12 +118,13 @@ class Cover(Stage):
             ctx.log.info("cover.eps %.4g raised to %.4g, the field's noise floor on its axis (cover.eps_from_field)",
                          cfg.eps, floor)
             cfg = dataclasses.replace(cfg, eps=float(floor))
-        mesh, stats = build_covering(ctx.load("field"), cfg, ctx.log)
+        mesh, stats, grid = build_covering(ctx.load("field"), cfg, ctx.log)
         stats["eps_requested"], stats["axis_q_p99"] = ctx.cfg.eps, floor
         if not stats["watertight"]:
             ctx.log.warning("the covering is not watertight; tetrahedralize will refuse it")
         ctx.save("covering", mesh)
         ctx.save("covering_stats", stats)
+        ctx.save("covering_grid", grid)
         ctx.log.info("covering: %d vertices, %d components (genus %s), volume %.3g, %d specks dropped; field evaluated "
                      "at %d of %d grid nodes", stats["vertices"], stats["components"], stats["genus"],
                      stats["volume"] or float("nan"), stats["dropped_specks"], stats["evaluated_nodes"], stats["grid_nodes"])

@@ -1,6 +1,7 @@
-"""``export``: the medial membrane as a MAT (radius per vertex from the input, ``qmdf.medial.radii``), in the unit box and in the
-input's own units: ``.ma`` (Q-MAT / MATTopo format), PLY with a ``radius`` vertex property, OBJ; and the
-surface the MAT reconstructs (union of its primitives' envelopes), meshed."""
+"""``export``: the MAT in the unit box and in the input's own units: ``.ma`` (Q-MAT / MATTopo format), PLY with a
+``radius`` vertex property, OBJ; and the surface the MAT reconstructs (union of its primitives' envelopes),
+meshed. The MAT is the single sheet when a ``sheet`` stage ran, else the contracted membrane (radius per vertex
+from ``radius``, ``qmdf.medial.radii``); the membrane is written as ``membrane.ma`` either way, for comparison."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_k
 from qmdf.medial.radii import RADIUS_SOURCES, mat_radii
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
+from qmdf.stages.inputs import input_data
 
 
 @dataclass
@@ -30,25 +32,17 @@ def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None
     return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
 
 
-def input_data(ctx: StageContext):
-    """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else the input points
-    (what the method saw, never the clean reference of a simulated scan)."""
-    info = ctx.load("input_info") if ctx.has("input_info") else {}
-    if ctx.has("surface") and info.get("kind") == "mesh" and not info.get("degradations"):
-        surface = ctx.load("surface")
-        return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
-    return None, ctx.load("points").points if ctx.has("points") else None
-
-
 @register_stage("export")
 class Export(Stage):
     """Write the MAT (.ma, .ply with radius, .obj) in both frames, and its reconstructed surface."""
 
     Config = ExportConfig
     inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
-    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON}
+    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON, "sheet": MAT}
     outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
-               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"), "reconstruction": MESH}
+               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"), "reconstruction": MESH,
+               "membrane_mat": MAT}
+    version = "2"  # 2: the single sheet when present; the membrane as membrane.ma
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -56,7 +50,9 @@ class Export(Stage):
 
         norm = ctx.load("normalization")
         mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
-        mat = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
+        membrane = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
+        ctx.save("membrane_mat", membrane)
+        mat = ctx.load("sheet") if ctx.has("sheet") else membrane
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
@@ -67,12 +63,19 @@ class Export(Stage):
         recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), ctx.cfg.reconstruction_resolution)
         ctx.save("reconstruction", recon)
         if ctx.cfg.picture:
+            from qmdf.geometry.metrics import medial_edges, seam_edges, unique_edges
             from qmdf.viz import render_mesh
 
-            render_mesh(ctx.stage_dir / "mat.png", v, mat.faces, radii, title="medial mesh", label="radius (unit box)")
+            in_faces = set(map(tuple, unique_edges(mat.faces)))
+            lone = np.array([e for e in map(tuple, medial_edges(mat.edges, mat.faces)) if e not in in_faces],
+                            np.int64).reshape(-1, 2)
+            render_mesh(ctx.stage_dir / "mat.png", v, mat.faces, radii, label="radius (unit box)",
+                        title=f"medial mesh: {len(v)} vertices, {len(mat.faces)} faces; lone edges black, seams red",
+                        lines=((lone, "black"), (seam_edges(mat.faces), "red")))
             if ctx.has("covering"):
                 cov = ctx.load("covering")
                 render_mesh(ctx.stage_dir / "covering_before.png", cov.vertices, cov.faces, title="eps-covering")
-                render_mesh(ctx.stage_dir / "covering_after.png", v, mat.faces, title="after contraction")
-        ctx.log.info("MAT: %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
-                     len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))
+                render_mesh(ctx.stage_dir / "covering_after.png", membrane.vertices, membrane.faces,
+                            title="after contraction (the membrane)")
+        ctx.log.info("MAT (%s): %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
+                     "single sheet" if ctx.has("sheet") else "membrane", len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))

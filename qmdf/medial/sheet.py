@@ -1,0 +1,181 @@
+"""The single-sheet medial mesh: the covering's solid collapsed to one layer (``qmdf.medial.thinning``), its
+vertices placed on the contracted membrane, which lies on the axis.
+
+The collapse fixes the topology (chi of the solid, seams where sheets meet, free rims); the membrane fixes the
+geometry. Two passes: the first keeps every square within q <= keep_q; around a curve-like axis (a torus's
+circle) that leaves a narrow fin of squares, which the membrane, contracted onto the curve, squashes to almost
+nothing. Squares whose placed area falls below ``fin_area`` of a grid square are released, and the second pass
+collapses them to the polyline.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from qmdf.medial.thinning import Collapse, CubicalComplex
+
+
+@dataclass
+class Sheet:
+    vertices: np.ndarray  # (V, 3)
+    edges: np.ndarray  # (E, 2) edges that bound no face (curve-like parts of the axis)
+    faces: np.ndarray  # (F, 3)
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def euler(self) -> int:
+        from qmdf.geometry.metrics import euler_medial_mesh
+
+        return euler_medial_mesh(len(self.vertices), self.edges, self.faces)
+
+
+def _quad_areas(x: np.ndarray, squares: np.ndarray) -> np.ndarray:
+    a, b, c, d = (x[squares[:, k]] for k in range(4))
+    return 0.5 * (np.linalg.norm(np.cross(b - a, c - a), axis=1) + np.linalg.norm(np.cross(c - a, d - a), axis=1))
+
+
+def _triangulate(x: np.ndarray, squares: np.ndarray) -> np.ndarray:
+    """Two triangles per square, split along its shorter placed diagonal."""
+    a, b, c, d = squares.T
+    short_ac = np.linalg.norm(x[a] - x[c], axis=1) <= np.linalg.norm(x[b] - x[d], axis=1)
+    t1 = np.where(short_ac[:, None], np.column_stack([a, b, c]), np.column_stack([a, b, d]))
+    t2 = np.where(short_ac[:, None], np.column_stack([a, c, d]), np.column_stack([b, c, d]))
+    return np.concatenate([t1, t2]).astype(np.int64)
+
+
+def _keep_levels(inside: np.ndarray, q: np.ndarray, eps: float, share: float, reach: int = 2) -> np.ndarray:
+    """Per node, the q below which squares and edges stay: ``share`` of the way from q's local floor (the lowest
+    q within ``reach`` nodes: the valley, whatever the grid's offset from it) up to eps (the covering)."""
+    from scipy.ndimage import minimum_filter
+
+    floor = minimum_filter(np.where(inside, q, np.inf), size=2 * reach + 1, mode="nearest")
+    floor = np.minimum(floor, eps)
+    return floor + share * (eps - floor)
+
+
+def _fin_squares(squares: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Flat squares that form a fin: a connected set of flat squares (sharing sides) that shares no side with a
+    square of proper area. A flat square between proper ones is a step of the staircase across a sheet:
+    collapsing it would slit the sheet, while the simplification merges it at no cost."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    if not flat.any():
+        return flat
+    s = squares
+    sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 3]], s[:, [3, 0]]]), axis=1)
+    owner = np.tile(np.arange(len(s)), 4)
+    _, side_id = np.unique(sides, axis=0, return_inverse=True)
+    side_id = side_id.ravel()
+    # squares -- sides incidence; two squares are adjacent when they share a side
+    inc = sparse.csr_matrix((np.ones(len(owner)), (owner, side_id)), shape=(len(s), int(side_id.max()) + 1))
+    adj = (inc @ inc.T).tocoo()
+    keep = flat[adj.row] & flat[adj.col]
+    graph = sparse.csr_matrix((np.ones(int(keep.sum())), (adj.row[keep], adj.col[keep])), shape=(len(s), len(s)))
+    _, label = connected_components(graph, directed=False)
+    touches_proper = np.zeros(label.max() + 1, bool)
+    mixed = flat[adj.row] & ~flat[adj.col]
+    touches_proper[label[adj.row[mixed]]] = True
+    return flat & ~touches_proper[label]
+
+
+def _covered_squares(x: np.ndarray, squares: np.ndarray, proper: np.ndarray, node_q: np.ndarray,
+                     radius: float) -> np.ndarray:
+    """Proper squares placed onto a spot that a square of lower q already covers (the node layers beside a
+    sheet all land on it): taking squares by increasing q, each one whose placed centre lies within ``radius``
+    of a square already taken is covered. Neighbours on one layer's staircase lie farther apart than half a
+    grid step, so one layer is never covered by itself."""
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(len(squares), bool)
+    idx = np.flatnonzero(proper)
+    if len(idx) < 2:
+        return out
+    centre = x[squares[idx]].mean(1)
+    near = cKDTree(centre).query_ball_point(centre, radius)
+    taken = np.zeros(len(idx), bool)
+    for k in np.argsort(node_q[squares[idx]].mean(1), kind="stable"):
+        if any(taken[j] for j in near[k] if j != k):
+            out[idx[k]] = True
+        else:
+            taken[k] = True
+    return out
+
+
+def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node_q: np.ndarray,
+                     short: float, reach: float) -> np.ndarray:
+    """Edges bounding no square that are placed almost to a point (shorter than ``short``: across a sheet),
+    onto a sheet (within ``reach`` of a square's placed centre: a removed layer's side), or onto the same spot
+    as another lone edge of lower q: they may collapse where they dangle. A curve-like axis away from any
+    sheet keeps its edges."""
+    from scipy.spatial import cKDTree
+
+    if not len(edges):
+        return np.zeros(0, bool)
+    lone = _lone_mask(edges, squares)
+    length = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)
+    mid = x[edges].mean(1)
+    out = lone & (length < short)
+    if len(squares):
+        out |= lone & (cKDTree(x[squares].mean(1)).query(mid)[0] < reach)
+    tree = cKDTree(mid)
+    eq = node_q[edges].mean(1)
+    for i in np.flatnonzero(lone & ~out):
+        near = tree.query_ball_point(mid[i], 0.5 * short)
+        if any(j != i and (eq[j] < eq[i] or (eq[j] == eq[i] and j < i)) for j in near):
+            out[i] = True
+    return out
+
+
+def _lone_mask(edges: np.ndarray, squares: np.ndarray) -> np.ndarray:
+    if not len(squares):
+        return np.ones(len(edges), bool)
+    s = squares
+    sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 3]], s[:, [3, 0]]]), axis=1)
+    e = np.sort(edges, axis=1)
+    base = int(max(e.max(), sides.max())) + 1
+    return ~np.isin(e[:, 0] * base + e[:, 1], sides[:, 0] * base + sides[:, 1])
+
+
+def _lone_edges(cx: CubicalComplex) -> np.ndarray:
+    """The 1-cells that are no square's side."""
+    return np.sort(cx.edges, axis=1)[_lone_mask(cx.edges, cx.squares)] if len(cx.edges) else cx.edges
+
+
+def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.ndarray, membrane_vertices: np.ndarray,
+                 membrane_faces: np.ndarray, eps: float, valley_share: float = 0.5, off_axis: float = 0.75,
+                 fin_area: float = 0.25) -> Sheet:
+    """The single sheet of the grid nodes ``inside`` the covering (q at them), placed on the membrane.
+
+    The cubes collapse first, in q's order. Then squares and edges may collapse where they are off the axis
+    (their corners, on average, farther than ``off_axis`` grid steps from the membrane: what the cubes left
+    on the covering's outer shell) or where they form a fin around a curve (placed squares smaller than
+    ``fin_area`` of a grid square, in a fin that touches no proper square; 0: never)."""
+    from qmdf.geometry.inside import mesh_distance
+
+    lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
+    h = float(spacing.max())
+    col = Collapse(inside, q, _keep_levels(inside, q, eps, valley_share))
+    cx = col.run()
+    first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
+    fins = np.zeros(len(cx.squares), bool)
+    for _ in range(5):
+        grid_points = lo + cx.nodes * spacing
+        dist, x = mesh_distance(membrane_vertices, membrane_faces, grid_points)
+        far = dist > off_axis * h
+        s, e = cx.squares, cx.edges
+        off_sq = far[s].mean(1) > 0.5 if len(s) else np.zeros(0, bool)
+        off_edge = far[e].all(1) if len(e) else np.zeros(0, bool)
+        off_edge |= _redundant_edges(x, e, s, q[tuple(cx.nodes.T)], fin_area * h, 0.75 * h)
+        area = _quad_areas(x, s)
+        flat = area < fin_area * float(np.prod(np.sort(spacing)[:2]))
+        soft_sq = off_sq | flat | _covered_squares(x, s, ~flat, q[tuple(cx.nodes.T)], 0.5 * h)
+        if not (soft_sq.any() or off_edge.any()):
+            break
+        col.soften(cx, soft_sq, off_edge)
+        cx = col.run()
+    x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)[1]
+    faces = _triangulate(x, cx.squares)
+    stats = {"collapse_chi": cx.euler, "cubes_left": cx.cubes, "first_pass": first, "squares": int(len(cx.squares))}
+    return Sheet(x, _lone_edges(cx), faces, stats)

@@ -1,0 +1,322 @@
+"""Simplify a medial mesh by edge collapse under the spherical quadric error (SQEM, Q-MAT: Li et al. 2015),
+never changing its topology.
+
+Each vertex is a sphere m = (x, r). A face's three spheres have two common tangent planes (its slab's sides,
+n . x + r = d with |n| = 1): their squared residuals (n . x + r - d)^2, weighted by the face's area, are the
+face's quadric; a vertex starts with the sum over its faces, so a collapse that keeps the envelope where it was
+costs nothing. A rim (an edge of one face) adds the plane through it perpendicular to its face, weighted by
+``boundary_weight``, so the rims stay where they are; a lone edge (a curve-like axis) adds the distance to its
+line; feature tips get a large point quadric. The new sphere minimises the summed quadric.
+
+A collapse must satisfy the link condition Lk(a) & Lk(b) = Lk(ab), which keeps the homotopy type of any
+simplicial complex, seams and lone edges included (Dey et al. 1999; Attali, Lieutier & Salinas 2012), and must
+not turn any surviving face over by more than ``max_turn_deg``.
+"""
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _best(QA, Qb, Qc, m, a, b):
+    """(cost, sphere) of merging a and b: the minimiser of the summed quadric (the midpoint if singular)."""
+    A = QA[a] + QA[b]
+    rhs = Qb[a] + Qb[b]
+    c = Qc[a] + Qc[b]
+    M = A.copy()
+    x = rhs.copy()
+    ok = True
+    for col in range(4):  # Gaussian elimination with partial pivoting
+        piv = col
+        for row in range(col + 1, 4):
+            if abs(M[row, col]) > abs(M[piv, col]):
+                piv = row
+        if abs(M[piv, col]) < 1e-300:
+            ok = False
+            break
+        if piv != col:
+            for k in range(4):
+                M[col, k], M[piv, k] = M[piv, k], M[col, k]
+            x[col], x[piv] = x[piv], x[col]
+        for row in range(col + 1, 4):
+            f = M[row, col] / M[col, col]
+            for k in range(col, 4):
+                M[row, k] -= f * M[col, k]
+            x[row] -= f * x[col]
+    if ok:
+        for col in range(3, -1, -1):
+            for k in range(col + 1, 4):
+                x[col] -= M[col, k] * x[k]
+            x[col] /= M[col, col]
+    else:
+        x = 0.5 * (m[a] + m[b])
+    if x[3] < 0:
+        x[3] = 0.0
+    cost = c - 2 * (rhs @ x) + x @ (A @ x)
+    return max(cost, 0.0), x
+
+
+@njit(cache=True)
+def _turns_within(p, q, min_cos):
+    """Whether no triangle turns by more than acos(min_cos) from p (K, 3, 3) to q (nor collapses to a line)."""
+    for k in range(p.shape[0]):
+        u0, u1, u2 = p[k, 1] - p[k, 0], p[k, 2] - p[k, 0], q[k, 1] - q[k, 0]
+        w2 = q[k, 2] - q[k, 0]
+        n0 = np.array([u0[1] * u1[2] - u0[2] * u1[1], u0[2] * u1[0] - u0[0] * u1[2], u0[0] * u1[1] - u0[1] * u1[0]])
+        n1 = np.array([u2[1] * w2[2] - u2[2] * w2[1], u2[2] * w2[0] - u2[0] * w2[2], u2[0] * w2[1] - u2[1] * w2[0]])
+        l0 = np.sqrt(n0 @ n0)
+        l1 = np.sqrt(n1 @ n1)
+        if l0 < 1e-20:
+            continue
+        if l1 < 1e-20 or (n0 @ n1) < min_cos * l0 * l1:
+            return False
+    return True
+
+
+def _initial_heap(Q: _Quadrics, faces: np.ndarray, edges: np.ndarray) -> list:
+    """(cost, a, b, 0, 0) for every edge, all 4x4 systems solved at once."""
+    e = np.concatenate([edges, faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = e[e[:, 0] != e[:, 1]]
+    if not len(e):
+        return []
+    A = Q.A[e[:, 0]] + Q.A[e[:, 1]]
+    b = Q.b[e[:, 0]] + Q.b[e[:, 1]]
+    c = Q.c[e[:, 0]] + Q.c[e[:, 1]]
+    x = np.linalg.solve(A, b[:, :, None])[:, :, 0]
+    x[:, 3] = np.maximum(x[:, 3], 0.0)
+    cost = np.maximum(np.einsum("ki,kij,kj->k", x, A, x) - 2 * (b * x).sum(1) + c, 0.0)
+    heap = [(float(k), int(i), int(j), 0, 0) for k, (i, j) in zip(cost, e)]
+    heapq.heapify(heap)
+    return heap
+
+
+@dataclass
+class SimplifyResult:
+    vertices: np.ndarray
+    radii: np.ndarray
+    edges: np.ndarray  # lone edges
+    faces: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+
+def slab_planes(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two planes n . x = d (|n| = 1) tangent to each face's three spheres (c (F, 3, 3), r (F, 3)), every
+    sphere on the side n . x <= d, i.e. n . c_i + r_i = d: normals (F, 2, 3), offsets (F, 2) and a mask of the
+    faces that have them (not when one sphere nearly contains the others' span or the centres are collinear)."""
+    e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+    m = np.cross(e1, e2)
+    mn = np.linalg.norm(m, axis=1)
+    # n = a e1 + b e2 + g m:  n . e1 = r0 - r1,  n . e2 = r0 - r2
+    g11, g12, g22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    det = g11 * g22 - g12 * g12
+    ok = (mn > 1e-14) & (det > 1e-28)
+    det = np.where(ok, det, 1.0)
+    r1, r2 = r[:, 0] - r[:, 1], r[:, 0] - r[:, 2]
+    a = (g22 * r1 - g12 * r2) / det
+    b = (g11 * r2 - g12 * r1) / det
+    t = a[:, None] * e1 + b[:, None] * e2
+    rest = 1.0 - (t * t).sum(1)
+    ok &= rest >= 0
+    g = np.sqrt(np.maximum(rest, 0.0))[:, None] * m / np.where(ok, mn, 1.0)[:, None]
+    n = np.stack([t + g, t - g], 1)
+    d = (n * c[:, None, 0]).sum(2) + r[:, :1]
+    return n, d, ok
+
+
+class _Quadrics:
+    """Per vertex, the 4D quadric x^T A x - 2 b . x + c over spheres x = (centre, radius)."""
+
+    def __init__(self, n: int):
+        self.A = np.zeros((n, 4, 4))
+        self.b = np.zeros((n, 4))
+        self.c = np.zeros(n)
+
+    def add_planes(self, vertices: np.ndarray, n4: np.ndarray, d: np.ndarray, w: np.ndarray) -> None:
+        """w (n4 . x - d)^2 added to each of ``vertices`` (K, j) for plane k."""
+        A = w[:, None, None] * n4[:, :, None] * n4[:, None, :]
+        b = (w * d)[:, None] * n4
+        c = w * d * d
+        for col in range(vertices.shape[1]):
+            np.add.at(self.A, vertices[:, col], A)
+            np.add.at(self.b, vertices[:, col], b)
+            np.add.at(self.c, vertices[:, col], c)
+
+
+def initial_quadrics(m: np.ndarray, faces: np.ndarray, edges: np.ndarray, boundary_weight: float,
+                     tips: np.ndarray, regular: float) -> _Quadrics:
+    Q = _Quadrics(len(m))
+    x, r = m[:, :3], m[:, 3]
+    if len(faces):
+        tri = x[faces]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        n, d, ok = slab_planes(tri, r[faces])
+        for side in (0, 1):
+            Q.add_planes(faces[ok], np.column_stack([n[ok, side], np.ones(int(ok.sum()))]), d[ok, side], area[ok])
+        # rims: the plane through the edge, perpendicular to its one face
+        if boundary_weight > 0:
+            e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+            owner = np.tile(np.arange(len(faces)), 3)
+            _, inv, counts = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
+            rim = counts[inv.ravel()] == 1
+            e, owner = e[rim], owner[rim]
+            fn = np.cross(tri[owner, 1] - tri[owner, 0], tri[owner, 2] - tri[owner, 0])
+            t = x[e[:, 1]] - x[e[:, 0]]
+            pn = np.cross(t, fn)
+            length = np.linalg.norm(pn, axis=1)
+            good = length > 1e-14
+            pn = pn[good] / length[good, None]
+            Q.add_planes(e[good], np.column_stack([pn, np.zeros(int(good.sum()))]),
+                         (pn * x[e[good, 0]]).sum(1), boundary_weight * (t[good] * t[good]).sum(1))
+    # lone edges: the distance to the edge's line, and the radius along it, at both ends
+    if len(edges):
+        t = x[edges[:, 1]] - x[edges[:, 0]]
+        length2 = (t * t).sum(1)
+        good = length2 > 1e-28
+        t = t[good] / np.sqrt(length2[good])[:, None]
+        P = np.zeros((len(t), 4, 4))
+        P[:, :3, :3] = np.eye(3) - t[:, :, None] * t[:, None, :]
+        P[:, 3, 3] = 1.0
+        P *= length2[good, None, None]
+        for col in (0, 1):
+            v = edges[good, col]
+            p4 = m[v]
+            np.add.at(Q.A, v, P)
+            np.add.at(Q.b, v, np.einsum("kij,kj->ki", P, p4))
+            np.add.at(Q.c, v, np.einsum("ki,kij,kj->k", p4, P, p4))
+    # every vertex: a weak pull to where it is (keeps the 4x4 systems solvable); tips: a strong one
+    w = regular * np.where(tips, 1e6, 1.0)
+    Q.A += w[:, None, None] * np.eye(4)
+    Q.b += w[:, None] * m
+    Q.c += w * (m * m).sum(1)
+    return Q
+
+
+def simplify_medial_mesh(vertices: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray,
+                         target_vertices: int, boundary_weight: float = 1.0, max_turn_deg: float = 60.0,
+                         tips: np.ndarray | None = None) -> SimplifyResult:
+    """Collapse edges, cheapest SQEM first, until ``target_vertices`` remain or no allowed collapse is left.
+    ``tips``: a mask of vertices to keep in place (sharp-feature tips)."""
+    m = np.column_stack([np.asarray(vertices, np.float64), np.asarray(radii, np.float64)])
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    n = len(m)
+    tips = np.zeros(n, bool) if tips is None else np.asarray(tips, bool)
+    tri = m[faces, :3]
+    mean_area = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).mean()) \
+        if len(faces) else 0.0
+    if mean_area == 0 and len(edges):
+        mean_area = float(np.mean(np.sum((m[edges[:, 0], :3] - m[edges[:, 1], :3]) ** 2, 1)))
+    Q = initial_quadrics(m, faces, edges, boundary_weight, tips, 1e-3 * max(mean_area, 1e-12))
+    face_of = [set() for _ in range(n)]
+    for k, f in enumerate(faces):
+        for v in f:
+            face_of[v].add(k)
+    lone = [set() for _ in range(n)]
+    for i, j in edges:
+        if i != j:
+            lone[i].add(j)
+            lone[j].add(i)
+    fv = [list(f) for f in faces]
+    face_alive = np.ones(len(faces), bool)
+    alive = np.ones(n, bool)
+    stamp = np.zeros(n, np.int64)
+    min_cos = math.cos(math.radians(max_turn_deg))
+
+    def neighbours(v):
+        s = set(lone[v])
+        for f in face_of[v]:
+            s.update(fv[f])
+        s.discard(v)
+        return s
+
+    def best(a, b):
+        return _best(Q.A, Q.b, Q.c, m, a, b)
+
+    def push(a, b):
+        cost, _ = best(a, b)
+        heapq.heappush(heap, (cost, a, b, stamp[a], stamp[b]))
+
+    heap = _initial_heap(Q, faces, edges)
+
+    def link_ok(a, b):
+        shared = {f for f in face_of[a] if b in fv[f]}
+        opposite = {w for f in shared for w in fv[f] if w != a and w != b}
+        if (neighbours(a) & neighbours(b)) != opposite:
+            return False
+        ea = {frozenset(w for w in fv[f] if w != a) for f in face_of[a] - shared}
+        eb = {frozenset(w for w in fv[f] if w != b) for f in face_of[b] - shared}
+        return not (ea & eb)
+
+    def turns_ok(a, b, x):
+        kept = [fv[f] for f in face_of[a] | face_of[b] if not (a in fv[f] and b in fv[f])]
+        if not kept:
+            return True
+        corners = np.array(kept)
+        p = m[corners, :3]
+        moved = (corners == a) | (corners == b)
+        new = np.where(moved[:, :, None], x[:3], p)
+        return _turns_within(p, new, min_cos)
+
+    remaining = n
+    collapses = rejected = flipped = 0
+    while remaining > target_vertices and heap:
+        cost, a, b, sa, sb = heapq.heappop(heap)
+        if not (alive[a] and alive[b]) or stamp[a] != sa or stamp[b] != sb:
+            continue
+        if tips[a] and tips[b]:
+            continue
+        _, x = best(a, b)
+        if not link_ok(a, b):
+            rejected += 1
+            continue
+        if not turns_ok(a, b, x):
+            flipped += 1
+            continue
+        # contract b into a
+        shared = {f for f in face_of[a] if b in fv[f]}
+        for f in shared:
+            face_alive[f] = False
+            for w in fv[f]:
+                face_of[w].discard(f)
+        for f in list(face_of[b]):
+            fv[f] = [a if w == b else w for w in fv[f]]
+            face_of[a].add(f)
+        face_of[b].clear()
+        for w in lone[b]:
+            lone[w].discard(b)
+            if w != a:
+                lone[w].add(a)
+                lone[a].add(w)
+        lone[a].discard(b)
+        lone[b].clear()
+        # a face's side that no face holds any more stays as a lone edge
+        for f in shared:
+            for w in fv[f]:
+                if w != a and w != b and not any(w in fv[g] for g in face_of[a]):
+                    lone[a].add(w)
+                    lone[w].add(a)
+        Q.A[a] += Q.A[b]
+        Q.b[a] += Q.b[b]
+        Q.c[a] += Q.c[b]
+        m[a] = x
+        tips[a] = tips[a] or tips[b]
+        alive[b] = False
+        stamp[a] += 1
+        remaining -= 1
+        collapses += 1
+        for u in neighbours(a):
+            push(a, u) if a < u else push(u, a)
+    index = np.full(n, -1)
+    index[alive] = np.arange(int(alive.sum()))
+    out_faces = np.array([[index[w] for w in fv[f]] for f in np.flatnonzero(face_alive)], np.int64).reshape(-1, 3)
+    out_edges = np.array(sorted({(index[v], index[u]) for v in np.flatnonzero(alive) for u in lone[v] if v < u}),
+                         np.int64).reshape(-1, 2)
+    stats = {"vertices_before": n, "vertices": int(alive.sum()), "collapses": collapses, "link_rejected": rejected,
+             "turn_rejected": flipped}
+    return SimplifyResult(m[alive, :3], m[alive, 3], out_edges, out_faces, stats)

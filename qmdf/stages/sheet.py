@@ -1,0 +1,102 @@
+"""``sheet``: the single-layer medial mesh. The covering's solid collapses to one layer with the solid's
+topology (``qmdf.medial.thinning``), placed on the contracted membrane (``qmdf.medial.sheet``), given radii
+from the input (``qmdf.medial.radii``) and simplified under the spherical quadric error without a change of
+topology (``qmdf.medial.simplify``). ``export`` writes it as the MAT; the membrane stays for comparison."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS
+from qmdf.errors import QmdfError
+from qmdf.medial.radii import RADIUS_SOURCES
+from qmdf.schema import param
+from qmdf.stage import Stage, StageContext, register_stage
+from qmdf.stages.inputs import input_data
+
+
+@dataclass
+class SheetConfig:
+    valley_share: float = param(0.5, gt=0, le=1, doc="squares and edges whose q lies above this share of the way "
+                                "from q's local floor up to eps may collapse (the covering's outer shell)")
+    off_axis: float = param(0.75, gt=0, doc="squares whose corners lie farther than this many grid steps from the "
+                            "membrane are off the axis and may collapse")
+    fin_area: float = param(0.25, ge=0, lt=1, doc="placed squares below this share of a grid square's area are "
+                            "flat: a fin around a curve-like axis or a step across a sheet")
+    speck_fraction: float = param(0.01, ge=0, lt=1, doc="drop pieces of the covering's solid with fewer nodes than "
+                                  "this share of the largest's (cover's rule for its specks)")
+    radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius before simplification (see export.radius)")
+    target_vertices: int = param(2000, ge=0, doc="simplify to this many vertices (0: no simplification)")
+    boundary_weight: float = param(1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's "
+                                   "free boundary in place)")
+    max_turn_deg: float = param(60.0, gt=0, le=180, doc="refuse a collapse that turns a face by more than this")
+    tip_reach: float = param(0.01, gt=0, doc="vertices within this of a feature point stay in place (unit box)")
+
+
+def keep_large_pieces(inside: np.ndarray, share: float) -> np.ndarray:
+    """The inside nodes whose 6-connected piece has at least ``share`` of the largest piece's nodes."""
+    from scipy import ndimage
+
+    label, n = ndimage.label(inside)
+    if n <= 1:
+        return inside
+    sizes = np.bincount(label.ravel())[1:]
+    keep = np.flatnonzero(sizes >= share * sizes.max()) + 1
+    return np.isin(label, keep)
+
+
+@register_stage("sheet")
+class Sheet(Stage):
+    """Collapse the covering's solid to one layer on the membrane; radii; SQEM simplification."""
+
+    Config = SheetConfig
+    inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
+    optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
+    outputs = {"sheet": MAT, "sheet_stats": JSON}
+
+    def run(self, ctx: StageContext) -> None:
+        from qmdf.geometry.ma_format import MedialMesh
+        from qmdf.medial.radii import mat_radii
+        from qmdf.medial.sheet import single_sheet
+        from qmdf.medial.simplify import simplify_medial_mesh
+
+        cfg: SheetConfig = ctx.cfg
+        grid = ctx.load("covering_grid")
+        inside = keep_large_pieces(grid["inside"], cfg.speck_fraction)
+        if not inside.any():
+            raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
+        field = ctx.load("field")
+        nodes = np.argwhere(inside)
+        q = np.full(inside.shape, np.inf)
+        q[tuple(nodes.T)] = field.evaluate(grid["lo"] + nodes * grid["spacing"])["q"]
+        membrane = ctx.load("membrane")
+        sheet = single_sheet(inside, q, grid["lo"], grid["spacing"], np.asarray(membrane.vertices),
+                             np.asarray(membrane.faces), grid["eps"], cfg.valley_share, cfg.off_axis, cfg.fin_area)
+        mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
+        radii = mat_radii(sheet.vertices, cfg.radius, field, mesh, points)
+        stats = {"nodes_inside": int(inside.sum()), "collapse": sheet.stats,
+                 "before": {"vertices": len(sheet.vertices), "edges": len(sheet.edges), "faces": len(sheet.faces),
+                            "chi": sheet.euler}}
+        v, e, f = sheet.vertices, sheet.edges, sheet.faces
+        if cfg.target_vertices and len(v) > cfg.target_vertices:
+            tips = None
+            if ctx.has("feature_points"):
+                from scipy.spatial import cKDTree
+
+                tips = cKDTree(ctx.load("feature_points").points).query(v)[0] < cfg.tip_reach
+            res = simplify_medial_mesh(v, radii, e, f, cfg.target_vertices, cfg.boundary_weight, cfg.max_turn_deg, tips)
+            v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
+            stats["simplify"] = res.stats
+        mat = MedialMesh(v, radii, e, f).with_face_edges()
+        from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
+
+        stats["after"] = {"vertices": len(v), "edges": int(len(mat.edges)), "faces": len(f),
+                          "lone_edges": int(len(e)), "chi": euler_medial_mesh(len(v), e, f),
+                          "seam_edges": int(len(seam_edges(f))), "rim_edges": int(len(single_face_edges(f)))}
+        ctx.save("sheet", mat)
+        ctx.save("sheet_stats", stats)
+        ctx.log.info("single sheet: %d vertices, %d faces, %d lone edges, chi %d, %d seam edges (before "
+                     "simplification: %d vertices, chi %d)", len(v), len(f), len(e), stats["after"]["chi"],
+                     stats["after"]["seam_edges"], stats["before"]["vertices"], stats["before"]["chi"])
+

@@ -1,0 +1,140 @@
+"""The single sheet: the collapse keeps the solid's topology, the placement puts it on the axis, the SQEM
+simplification keeps topology and envelope. Known answers: a disc (chi 1, a rim), a circle (chi 0, no faces),
+three half-planes meeting along a line (a seam), an annulus, a triangle of lone edges."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
+from qmdf.medial.sheet import single_sheet
+from qmdf.medial.simplify import simplify_medial_mesh, slab_planes
+from qmdf.medial.thinning import collapse_to_sheet
+
+N = 48
+AX = np.linspace(-0.55, 0.55, N)
+H = AX[1] - AX[0]
+X, Y, Z = np.meshgrid(AX, AX, AX, indexing="ij")
+R = np.hypot(X, Y)
+LO, SPACING = np.full(3, AX[0]), np.full(3, H)
+
+
+def _disc_membrane(radius: float):
+    disc = trimesh.creation.annulus(r_min=0, r_max=radius, height=1e-6, sections=96) if False else None
+    t = np.linspace(0, 2 * np.pi, 97)[:-1]
+    v = np.vstack([[0, 0, 0], np.column_stack([radius * np.cos(t), radius * np.sin(t), 0 * t])])
+    f = np.array([[0, 1 + k, 1 + (k + 1) % 96] for k in range(96)])
+    return v, f, disc
+
+
+def test_collapse_keeps_the_topology_of_discs_tubes_and_seams():
+    disc = np.abs(Z) + np.maximum(R - 0.4, 0)  # q of a disc of radius 0.4 in z = 0
+    for eps in (0.03, 0.06):  # two and four node layers thick
+        cx = collapse_to_sheet(disc < eps, disc, 0.5 * eps)
+        assert cx.euler == 1 and cx.cubes == 0 and len(cx.squares) > 0
+    tube = np.hypot(R - 0.3, Z)  # q of a torus's circle
+    assert collapse_to_sheet(tube < 0.05, tube, 0.025).euler == 0
+    planes = np.min([np.abs(-np.sin(a) * X + np.cos(a) * Y) + np.maximum(-(np.cos(a) * X + np.sin(a) * Y), 0)
+                     for a in (0, 2.1, 4.2)], axis=0) + np.maximum(np.abs(Z) - 0.3, 0) + np.maximum(R - 0.4, 0)
+    assert collapse_to_sheet(planes < 0.05, planes, 0.025).euler == 1
+
+
+def test_disc_sheet_is_one_layer_on_the_axis_reaching_the_rim():
+    q = np.abs(Z) + np.maximum(R - 0.4, 0)
+    v, f, _ = _disc_membrane(0.4)
+    sheet = single_sheet(q < 0.03, q, LO, SPACING, v, f, eps=0.03)
+    assert sheet.euler == 1 and len(sheet.edges) == 0
+    assert np.abs(sheet.vertices[:, 2]).max() < 1e-9  # placed on the membrane
+    # one layer: the placed faces cover the disc once (area of the disc, not twice it)
+    tri = sheet.vertices[sheet.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    true_area = np.pi * 0.4 ** 2 * (96 / (2 * np.pi)) * np.sin(2 * np.pi / 96)  # the 96-gon
+    assert abs(area - true_area) < 0.05 * true_area
+    rim = np.unique(single_face_edges(sheet.faces))
+    assert np.hypot(*sheet.vertices[rim, :2].T).min() > 0.4 - 3 * H  # its rim is the disc's rim
+
+
+def test_circle_sheet_is_a_closed_polyline():
+    q = np.hypot(R - 0.3, Z)
+    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
+    sheet = single_sheet(q < 0.05, q, LO, SPACING, np.asarray(tube.vertices), np.asarray(tube.faces), eps=0.05)
+    assert len(sheet.faces) == 0 and sheet.euler == 0
+    assert np.bincount(sheet.edges.ravel()).tolist() == [2] * len(sheet.vertices)
+    assert np.abs(np.hypot(np.hypot(*sheet.vertices[:, :2].T) - 0.3, sheet.vertices[:, 2])).max() < 2e-4
+
+
+def test_slab_planes_touch_all_three_spheres():
+    rng = np.random.default_rng(0)
+    c = rng.uniform(-1, 1, (200, 3, 3))
+    r = rng.uniform(0.05, 0.2, (200, 3))
+    n, d, ok = slab_planes(c, r)
+    assert ok.mean() > 0.9
+    assert np.allclose(np.linalg.norm(n[ok], axis=2), 1)
+    for side in (0, 1):
+        assert np.allclose((n[ok, side, None, :] * c[ok]).sum(2) + r[ok], d[ok, side][:, None], atol=1e-9)
+    # three equal spheres in z = 0: the planes z = +-r
+    n, d, ok = slab_planes(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]]), np.array([[0.3, 0.3, 0.3]]))
+    assert ok[0] and np.allclose(sorted(n[0, :, 2]), [-1, 1]) and np.allclose(d[0], 0.3)
+
+
+def _grid_sheet(nx: int, ny: int, z=lambda x, y: 0 * x):
+    x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 1, ny), indexing="ij")
+    v = np.column_stack([x.ravel(), y.ravel(), z(x, y).ravel()])
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return v, np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+
+
+def test_simplify_a_flat_sheet_keeps_its_rim_and_envelope():
+    v, f = _grid_sheet(30, 30)
+    res = simplify_medial_mesh(v, np.full(len(v), 0.1), np.zeros((0, 2)), f, 60)
+    assert len(res.vertices) == 60 and euler_medial_mesh(60, res.edges, res.faces) == 1
+    assert np.abs(res.vertices[:, 2]).max() < 1e-9 and np.allclose(res.radii, 0.1, atol=1e-9)
+    assert np.allclose(res.vertices.min(0)[:2], 0, atol=1e-6) and np.allclose(res.vertices.max(0)[:2], 1, atol=1e-6)
+
+
+def test_simplify_keeps_seams_holes_and_cycles():
+    # three unit squares meeting along the z axis (a Y-junction), radius growing away from the seam
+    sheets = []
+    for a in (0.0, 2.1, 4.2):
+        v, f = _grid_sheet(12, 12)
+        d = np.array([np.cos(a), np.sin(a), 0])
+        sheets.append((v[:, :1] * d + v[:, 1:2] * [0, 0, 1], f))
+    v = np.vstack([s[0] for s in sheets])
+    f = np.vstack([s[1] + 144 * k for k, s in enumerate(sheets)])
+    _, index, inverse = np.unique(np.round(v, 9), axis=0, return_index=True, return_inverse=True)
+    v, f = v[index], inverse.ravel()[f]
+    r = 0.05 + 0.1 * np.linalg.norm(v[:, :2], axis=1)
+    res = simplify_medial_mesh(v, r, np.zeros((0, 2)), f, 30)
+    assert euler_medial_mesh(len(res.vertices), res.edges, res.faces) == 1
+    assert len(seam_edges(res.faces)) >= 1 and len(res.edges) == 0
+    # an annulus stays an annulus
+    t = np.linspace(0, 2 * np.pi, 41)[:-1]
+    ring = np.vstack([np.column_stack([rad * np.cos(t), rad * np.sin(t), 0 * t]) for rad in (0.3, 0.35, 0.4)])
+    faces = []
+    for k in range(2):
+        for j in range(40):
+            a, b, c, d = 40 * k + j, 40 * k + (j + 1) % 40, 40 * (k + 1) + (j + 1) % 40, 40 * (k + 1) + j
+            faces += [[a, b, c], [a, c, d]]
+    res = simplify_medial_mesh(ring, np.full(len(ring), 0.05), np.zeros((0, 2)), np.array(faces), 3)
+    assert euler_medial_mesh(len(res.vertices), res.edges, res.faces) == 0 and len(res.vertices) >= 6
+    # a triangle of lone edges: no collapse may shrink the cycle to a double edge
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])
+    res = simplify_medial_mesh(tri, np.full(3, 0.1), np.array([[0, 1], [1, 2], [2, 0]]), np.zeros((0, 3)), 1)
+    assert len(res.vertices) == 3 and len(res.edges) == 3
+
+
+@pytest.mark.parametrize("target", [40, 200])
+def test_simplify_a_curved_sheet_keeps_its_envelope_close(target):
+    from qmdf.geometry.envelope import EnvelopeUnion
+    from qmdf.geometry.ma_format import MedialMesh
+
+    v, f = _grid_sheet(25, 25, lambda x, y: 0.2 * np.sin(2 * x) * np.cos(y))
+    r = 0.05 + 0.05 * v[:, 0]
+    res = simplify_medial_mesh(v, r, np.zeros((0, 2)), f, target)
+    assert euler_medial_mesh(len(res.vertices), res.edges, res.faces) == 1
+    # every simplified sphere lies on the original envelope's surface to within a few per cent of its radius
+    union = EnvelopeUnion.from_mat(MedialMesh(v, r, np.zeros((0, 2)), f).with_face_edges())
+    tops = res.vertices + res.radii[:, None] * np.array([0, 0, 1.0])
+    assert np.abs(union.distance(tops)).max() < 0.1 * r.max()
