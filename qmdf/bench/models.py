@@ -85,6 +85,12 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
             row.update(cd=mm["chamfer"], hd=mm["hausdorff"], chi=mm["chi"], smoothness=mm["boundary_smoothness"])
             quality = mm.get("field") or {}
             row.update(sign=quality.get("sign_accuracy"), grad_inside=quality.get("grad_sdf_inside"))
+            row.update(vertices=mm["vertices"], faces=mm["faces"])
+        arts = {name: run_dir / a["path"] for st in m.get("stages", []) for name, a in st["artifacts"].items()}
+        if "sheet_stats" in arts:
+            row["seams"] = json.loads(arts["sheet_stats"].read_text())["after"]["seam_edges"]
+        if metrics is not None and "membrane_mat" in arts and "surface" in arts:
+            row.update(membrane_scores(arts["membrane_mat"], arts["surface"]))
         training = next((run_dir / s["artifacts"]["training"]["path"] for s in m.get("stages", [])
                          if s["name"] == "train" and "training" in s["artifacts"]), None)
         if training is not None:
@@ -98,6 +104,19 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
     return row
 
 
+def membrane_scores(membrane_ma: Path, surface_ply: Path) -> dict:
+    """CD / HD of the contracted membrane's reconstruction, beside the single sheet's (issue 16: within 1.2x)."""
+    import numpy as np
+    import trimesh
+
+    from qmdf.evaluate import score_mat
+    from qmdf.geometry.ma_format import read_ma
+
+    surface = trimesh.load(surface_ply, process=False)
+    m = score_mat(read_ma(membrane_ma), np.asarray(surface.vertices), np.asarray(surface.faces))
+    return {"membrane_cd": m["chamfer"], "membrane_hd": m["hausdorff"]}
+
+
 def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
     if v is None:
         return "-"
@@ -106,7 +125,8 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 
 def print_table(rows: list[dict]) -> None:
     head = f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}" \
-           f"{'exp':>5}{'C_avg':>7}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}  stages (s) / note"
+           f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}" \
+           "  stages (s) / note"
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -114,12 +134,16 @@ def print_table(rows: list[dict]) -> None:
         stages = " ".join(f"{k}={v:.1f}" for k, v in (r.get("stage_s") or {}).items())
         print(f"{r['model']:<28}{r['category']:<26}{r.get('route') or '-':<16}{_fmt(r.get('sign'), 1, 4):>7}"
               f"{_fmt(r.get('grad_inside'), 1, 3):>7}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
-              f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}{paper:>18}"
+              f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}"
+              f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}"
+              f"{_fmt(r.get('membrane_cd'), 1e3) + '/' + _fmt(r.get('membrane_hd'), 1e3):>13}{paper:>18}"
               f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  {stages}{' | ' + r['note'] if r.get('note') else ''}")
     print("\nCD / HD: exact point-to-surface distances, (mean R->G + mean G->R)/2 and the larger max, unit box "
           "(see qmdf.geometry.metrics.CD_DEFINITION); exp: chi the input's genus implies for its medial axis.\n"
           "route: the field's supervision; sign: share of 100k volume samples in the unit box whose learned sign agrees "
-          "with the reference mesh's winding number; |grad|: mean |grad sdf| inside (1 is metric).")
+          "with the reference mesh's winding number; |grad|: mean |grad sdf| inside (1 is metric).\n"
+          "V / F / seams: the single sheet's vertices, faces and edges of three or more faces; membr CD/HD (e-3): the "
+          "contracted membrane's reconstruction, which the sheet replaces.")
 
 
 def main(argv: list[str]) -> int:

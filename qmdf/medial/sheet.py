@@ -1,11 +1,11 @@
 """The single-sheet medial mesh: the covering's solid collapsed to one layer (``qmdf.medial.thinning``), its
 vertices placed on the contracted membrane, which lies on the axis.
 
-The collapse fixes the topology (chi of the solid, seams where sheets meet, free rims); the membrane fixes the
-geometry. Two passes: the first keeps every square within q <= keep_q; around a curve-like axis (a torus's
-circle) that leaves a narrow fin of squares, which the membrane, contracted onto the curve, squashes to almost
-nothing. Squares whose placed area falls below ``fin_area`` of a grid square are released, and the second pass
-collapses them to the polyline.
+The collapse fixes the topology (chi of the solid, seams where sheets meet, free rims, curves); the membrane
+fixes the geometry. The cubes collapse in q's order; squares and edges then only where they are redundant:
+off the axis (the covering's outer shell), in q's upper band (``valley_share``), flat once placed (a fin
+around a curve, a step across a sheet), or covering a spot another square of lower q already covers (the node
+layers beside a sheet). Whatever the rules release, the collapse only removes what keeps the homotopy type.
 """
 from __future__ import annotations
 
@@ -30,6 +30,25 @@ class Sheet:
         return euler_medial_mesh(len(self.vertices), self.edges, self.faces)
 
 
+def _centre_curves(x: np.ndarray, squares: np.ndarray, membrane_vertices: np.ndarray, reach: float) -> np.ndarray:
+    """Vertices of no square (a curve-like axis) moved from the membrane's surface to the middle of it: the
+    mean of the membrane's vertices within ``reach``. Around a curve the contracted membrane is a thin tube,
+    and its surface is off the axis by the tube's radius."""
+    from scipy.spatial import cKDTree
+
+    curve = np.ones(len(x), bool)
+    curve[np.unique(squares)] = False
+    if not curve.any():
+        return x
+    tree = cKDTree(membrane_vertices)
+    out = x.copy()
+    for i in np.flatnonzero(curve):
+        near = tree.query_ball_point(x[i], reach)
+        if near:
+            out[i] = membrane_vertices[near].mean(0)
+    return out
+
+
 def _quad_areas(x: np.ndarray, squares: np.ndarray) -> np.ndarray:
     a, b, c, d = (x[squares[:, k]] for k in range(4))
     return 0.5 * (np.linalg.norm(np.cross(b - a, c - a), axis=1) + np.linalg.norm(np.cross(c - a, d - a), axis=1))
@@ -52,32 +71,6 @@ def _keep_levels(inside: np.ndarray, q: np.ndarray, eps: float, share: float, re
     floor = minimum_filter(np.where(inside, q, np.inf), size=2 * reach + 1, mode="nearest")
     floor = np.minimum(floor, eps)
     return floor + share * (eps - floor)
-
-
-def _fin_squares(squares: np.ndarray, flat: np.ndarray) -> np.ndarray:
-    """Flat squares that form a fin: a connected set of flat squares (sharing sides) that shares no side with a
-    square of proper area. A flat square between proper ones is a step of the staircase across a sheet:
-    collapsing it would slit the sheet, while the simplification merges it at no cost."""
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
-    if not flat.any():
-        return flat
-    s = squares
-    sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 3]], s[:, [3, 0]]]), axis=1)
-    owner = np.tile(np.arange(len(s)), 4)
-    _, side_id = np.unique(sides, axis=0, return_inverse=True)
-    side_id = side_id.ravel()
-    # squares -- sides incidence; two squares are adjacent when they share a side
-    inc = sparse.csr_matrix((np.ones(len(owner)), (owner, side_id)), shape=(len(s), int(side_id.max()) + 1))
-    adj = (inc @ inc.T).tocoo()
-    keep = flat[adj.row] & flat[adj.col]
-    graph = sparse.csr_matrix((np.ones(int(keep.sum())), (adj.row[keep], adj.col[keep])), shape=(len(s), len(s)))
-    _, label = connected_components(graph, directed=False)
-    touches_proper = np.zeros(label.max() + 1, bool)
-    mixed = flat[adj.row] & ~flat[adj.col]
-    touches_proper[label[adj.row[mixed]]] = True
-    return flat & ~touches_proper[label]
 
 
 def _covered_squares(x: np.ndarray, squares: np.ndarray, proper: np.ndarray, node_q: np.ndarray,
@@ -106,9 +99,10 @@ def _covered_squares(x: np.ndarray, squares: np.ndarray, proper: np.ndarray, nod
 def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node_q: np.ndarray,
                      short: float, reach: float) -> np.ndarray:
     """Edges bounding no square that are placed almost to a point (shorter than ``short``: across a sheet),
-    onto a sheet (within ``reach`` of a square's placed centre: a removed layer's side), or onto the same spot
-    as another lone edge of lower q: they may collapse where they dangle. A curve-like axis away from any
-    sheet keeps its edges."""
+    onto a sheet (within ``reach`` of a square's placed centre: a removed layer's side), onto the same spot as
+    another lone edge of lower q (within half of ``reach``), or dangling with the loose end within ``reach`` of
+    another vertex (a spur beside a curve): they may collapse where they dangle. A curve-like axis away from any
+    sheet keeps its edges, its loose ends included."""
     from scipy.spatial import cKDTree
 
     if not len(edges):
@@ -122,9 +116,17 @@ def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node
     tree = cKDTree(mid)
     eq = node_q[edges].mean(1)
     for i in np.flatnonzero(lone & ~out):
-        near = tree.query_ball_point(mid[i], 0.5 * short)
+        near = tree.query_ball_point(mid[i], 0.5 * reach)
         if any(j != i and (eq[j] < eq[i] or (eq[j] == eq[i] and j < i)) for j in near):
             out[i] = True
+    # a spur: a dangling edge whose loose end lands beside a vertex other than its own neighbour
+    degree = np.bincount(edges.ravel(), minlength=len(x))
+    points = cKDTree(x)
+    for i in np.flatnonzero(lone & ~out):
+        for end, other in ((0, 1), (1, 0)):
+            v, w = edges[i, end], edges[i, other]
+            if degree[v] == 1 and any(u != v and u != w for u in points.query_ball_point(x[v], reach)):
+                out[i] = True
     return out
 
 
@@ -150,8 +152,10 @@ def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.
 
     The cubes collapse first, in q's order. Then squares and edges may collapse where they are off the axis
     (their corners, on average, farther than ``off_axis`` grid steps from the membrane: what the cubes left
-    on the covering's outer shell) or where they form a fin around a curve (placed squares smaller than
-    ``fin_area`` of a grid square, in a fin that touches no proper square; 0: never)."""
+    on the covering's outer shell), where they are flat once placed (smaller than ``fin_area`` of a grid square:
+    a fin around a curve-like axis, a step across a sheet), or where a square of lower q already covers their
+    placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``). Each
+    release can expose more, so release and collapse repeat until nothing changes."""
     from qmdf.geometry.inside import mesh_distance
 
     lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
@@ -159,8 +163,7 @@ def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.
     col = Collapse(inside, q, _keep_levels(inside, q, eps, valley_share))
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
-    fins = np.zeros(len(cx.squares), bool)
-    for _ in range(5):
+    for _ in range(20):  # until nothing more is released (a released layer can expose the next)
         grid_points = lo + cx.nodes * spacing
         dist, x = mesh_distance(membrane_vertices, membrane_faces, grid_points)
         far = dist > off_axis * h
@@ -174,8 +177,12 @@ def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.
         if not (soft_sq.any() or off_edge.any()):
             break
         col.soften(cx, soft_sq, off_edge)
+        cells = len(cx.nodes) + len(cx.edges) + len(cx.squares)
         cx = col.run()
+        if len(cx.nodes) + len(cx.edges) + len(cx.squares) == cells:
+            break
     x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)[1]
+    x = _centre_curves(x, cx.squares, membrane_vertices, h)
     faces = _triangulate(x, cx.squares)
     stats = {"collapse_chi": cx.euler, "cubes_left": cx.cubes, "first_pass": first, "squares": int(len(cx.squares))}
     return Sheet(x, _lone_edges(cx), faces, stats)

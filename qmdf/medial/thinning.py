@@ -208,24 +208,23 @@ def collapse_to_sheet(inside: np.ndarray, values: np.ndarray, keep_q: float) -> 
 
 def _read_complex(cells: np.ndarray, lo: np.ndarray) -> CubicalComplex:
     idx = np.argwhere(cells)
-    dim = (idx % 2).sum(1)
+    odd = idx % 2
+    dim = odd.sum(1)
+    shape = np.array(cells.shape)
     verts = idx[dim == 0]
-    lookup = {tuple(p): n for n, p in enumerate(verts)}
+    keys = np.ravel_multi_index(verts.T, shape)  # argwhere's C order: already sorted
 
     def corner(p):
-        return lookup[tuple(p)]
+        return np.searchsorted(keys, np.ravel_multi_index(p.T, shape))
 
-    edges = []
-    for p in idx[dim == 1]:
-        ax = int(np.flatnonzero(p % 2)[0])
-        a, b = p.copy(), p.copy()
-        a[ax] -= 1
-        b[ax] += 1
-        edges.append((corner(a), corner(b)))
-    squares = []
-    for p in idx[dim == 2]:
-        u, w = np.flatnonzero(p % 2)
-        du, dw = np.eye(3, dtype=np.int64)[u], np.eye(3, dtype=np.int64)[w]
-        squares.append((corner(p - du - dw), corner(p + du - dw), corner(p + du + dw), corner(p - du + dw)))
-    return CubicalComplex(verts // 2 + lo, np.array(edges, np.int64).reshape(-1, 2),
-                          np.array(squares, np.int64).reshape(-1, 4), int((dim == 3).sum()), idx[dim == 2], idx[dim == 1])
+    eye = np.eye(3, dtype=np.int64)
+    ep = idx[dim == 1]
+    d = eye[np.argmax(ep % 2, axis=1)]
+    edges = np.column_stack([corner(ep - d), corner(ep + d)])
+    sp = idx[dim == 2]
+    so = sp % 2
+    u = eye[np.argmax(so, axis=1)]  # the first odd axis
+    w = eye[2 - np.argmax(so[:, ::-1], axis=1)]  # the last odd axis
+    squares = np.column_stack([corner(sp - u - w), corner(sp + u - w), corner(sp + u + w), corner(sp - u + w)])
+    return CubicalComplex(verts // 2 + lo, edges.astype(np.int64).reshape(-1, 2), squares.astype(np.int64).reshape(-1, 4),
+                          int((dim == 3).sum()), sp, ep)

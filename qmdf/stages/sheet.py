@@ -27,7 +27,7 @@ class SheetConfig:
     speck_fraction: float = param(0.01, ge=0, lt=1, doc="drop pieces of the covering's solid with fewer nodes than "
                                   "this share of the largest's (cover's rule for its specks)")
     radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius before simplification (see export.radius)")
-    target_vertices: int = param(2000, ge=0, doc="simplify to this many vertices (0: no simplification)")
+    target_vertices: int = param(3000, ge=0, doc="simplify to this many vertices (0: no simplification); the teacup's CD over the membrane's: 1.18x at 3000, 1.25x at 2000, 0.96x unsimplified (136k vertices)")
     boundary_weight: float = param(1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's "
                                    "free boundary in place)")
     max_turn_deg: float = param(60.0, gt=0, le=180, doc="refuse a collapse that turns a face by more than this")
