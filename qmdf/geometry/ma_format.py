@@ -37,6 +37,18 @@ class MedialMesh:
         return MedialMesh(self.vertices, self.radii, all_edges, f)
 
 
+    def lone_edges(self) -> np.ndarray:
+        """The edges that bound no face (where the medial axis is a curve), each once."""
+        e = np.sort(self.edges, axis=1)
+        e = np.unique(e[e[:, 0] != e[:, 1]], axis=0) if len(e) else e
+        f = self.faces
+        if not len(f) or not len(e):
+            return e
+        sides = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+        base = int(max(e.max(), sides.max())) + 1
+        return e[~np.isin(e[:, 0] * base + e[:, 1], sides[:, 0] * base + sides[:, 1])]
+
+
 def write_ma(path: Path, mat: MedialMesh) -> None:
     mat = mat.with_face_edges()
     lines = [f"{len(mat.vertices)} {len(mat.edges)} {len(mat.faces)}"]
@@ -72,20 +84,27 @@ def read_ma(path: Path) -> MedialMesh:
 
 
 def write_ply_with_radius(path: Path, mat: MedialMesh) -> None:
-    """Binary PLY: vertices with a float ``radius`` property, triangle faces (MeshLab, Blender, trimesh read it)."""
+    """Binary PLY: vertices with a float ``radius`` property, triangle faces and the lone edges (where the axis is
+    a curve) as an ``edge`` element (MeshLab, Blender, trimesh read it)."""
+    lone = mat.lone_edges()
     header = (
         "ply\nformat binary_little_endian 1.0\n"
         f"element vertex {len(mat.vertices)}\nproperty float x\nproperty float y\nproperty float z\nproperty float radius\n"
-        f"element face {len(mat.faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+        f"element face {len(mat.faces)}\nproperty list uchar int vertex_indices\n"
+        f"element edge {len(lone)}\nproperty int vertex1\nproperty int vertex2\nend_header\n"
     ).encode()
     verts = np.hstack([mat.vertices, mat.radii[:, None]]).astype("<f4")
     faces = np.empty(len(mat.faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
     faces["n"], faces["idx"] = 3, mat.faces
-    Path(path).write_bytes(header + verts.tobytes() + faces.tobytes())
+    Path(path).write_bytes(header + verts.tobytes() + faces.tobytes() + lone.astype("<i4").tobytes())
 
 
 def write_obj(path: Path, mat: MedialMesh) -> None:
-    """OBJ of the medial mesh (radii as a comment per vertex: OBJ has no vertex attributes)."""
-    lines = [f"v {x:.9g} {y:.9g} {z:.9g}  # r {r:.9g}" for (x, y, z), r in zip(mat.vertices, mat.radii)]
+    """OBJ of the medial mesh: faces, and the lone edges as ``l`` lines. OBJ has no vertex attributes, so the
+    radii follow as whole-line comments (``# radius i r``, 1-based like the vertices), which readers skip."""
+    lines = ["# medial mesh; each vertex's radius: '# radius <vertex> <r>' below"]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mat.vertices]
     lines += [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in mat.faces]
+    lines += [f"l {i + 1} {j + 1}" for i, j in mat.lone_edges()]
+    lines += [f"# radius {i + 1} {r:.9g}" for i, r in enumerate(mat.radii)]
     Path(path).write_text("\n".join(lines) + "\n")

@@ -40,7 +40,8 @@ class Export(Stage):
     inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
     optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON, "sheet": MAT}
     outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
-               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"), "reconstruction": MESH,
+               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"),
+               "mat_obj_input_units": file_kind(".obj"), "reconstruction": MESH,
                "membrane_mat": MAT}
     version = "2"  # 2: the single sheet when present; the membrane as membrane.ma
 
@@ -60,15 +61,14 @@ class Export(Stage):
         write_ply_with_radius(ctx.path("mat_ply"), mat)
         write_ply_with_radius(ctx.path("mat_ply_input_units"), in_units)
         write_obj(ctx.path("mat_obj"), mat)
+        write_obj(ctx.path("mat_obj_input_units"), in_units)
         recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), ctx.cfg.reconstruction_resolution)
         ctx.save("reconstruction", recon)
         if ctx.cfg.picture:
-            from qmdf.geometry.metrics import medial_edges, seam_edges, unique_edges
+            from qmdf.geometry.metrics import seam_edges
             from qmdf.viz import render_mesh
 
-            in_faces = set(map(tuple, unique_edges(mat.faces)))
-            lone = np.array([e for e in map(tuple, medial_edges(mat.edges, mat.faces)) if e not in in_faces],
-                            np.int64).reshape(-1, 2)
+            lone = mat.lone_edges()
             render_mesh(ctx.stage_dir / "mat.png", v, mat.faces, radii, label="radius (unit box)",
                         title=f"medial mesh: {len(v)} vertices, {len(mat.faces)} faces; lone edges black, seams red",
                         lines=((lone, "black"), (seam_edges(mat.faces), "red")))
