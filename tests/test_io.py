@@ -141,3 +141,51 @@ def test_limits_are_configurable(tmp_path):
     path = _bad(tmp_path, "big.xyz", cube_points() * 1e5)
     with pytest.raises(InputError, match="max_abs_coordinate"):
         load_geometry(path, limits=Limits(max_abs_coordinate=1e4))
+
+
+def _ascii_ply(path, vertices, faces):
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+            f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    path.write_text(head + "".join(f"{a} {b} {c}\n" for a, b, c in vertices) + "".join(f"3 {a} {b} {c}\n" for a, b, c in faces))
+    return path
+
+
+def test_ply_faces_outside_the_vertices_are_dropped_never_wrapped(tmp_path, caplog):
+    """A face index past the vertices crashed trimesh's merge with a traceback; a negative one was wrapped to
+    another vertex."""
+    v, f = np.asarray(SPHERE.vertices), np.asarray(SPHERE.faces)
+    path = _ascii_ply(tmp_path / "bad.ply", v, np.vstack([f, [[0, 1, len(v) + 5]], [[0, -1, 2]]]))
+    g = load_geometry(path)
+    assert len(g.faces) == len(f) and "dropped 2 face(s)" in caplog.text
+    only_bad = _ascii_ply(tmp_path / "worse.ply", v[:4], [[0, 1, 9], [-2, 1, 2]])
+    with pytest.raises(InputError, match="every face refers to a vertex outside 0..3"):
+        load_geometry(only_bad)
+
+
+def test_six_column_xyz_with_colours_is_not_taken_as_normals(tmp_path, caplog):
+    pts = cube_points()
+    rgb = np.random.default_rng(1).integers(0, 256, (len(pts), 3))
+    np.savetxt(tmp_path / "rgb.xyz", np.hstack([pts, rgb]))
+    g = load_geometry(tmp_path / "rgb.xyz")
+    assert g.points.normals is None and "not unit normals" in caplog.text
+    # nearly unit normals (written with 3 digits) are kept and made unit
+    n = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    np.savetxt(tmp_path / "n.xyz", np.hstack([pts, np.round(n * 1.02, 3)]))
+    assert np.allclose(np.linalg.norm(load_geometry(tmp_path / "n.xyz").points.normals, axis=1), 1)
+
+
+def test_atomic_writes_follow_the_umask(tmp_path):
+    """mkstemp makes 0600 files: results on a shared machine were unreadable to the group."""
+    import os
+
+    from qmdf.artifacts import write_json
+
+    old = os.umask(0o022)
+    try:
+        write_json(tmp_path / "a.json", {"x": 1})
+        assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o644
+        os.umask(0o002)
+        write_json(tmp_path / "b.json", {"x": 1})
+        assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o664
+    finally:
+        os.umask(old)

@@ -98,6 +98,14 @@ def _from_columns(data: np.ndarray, source: str) -> InputGeometry:
     normals = data[:, 3:6] if data.shape[1] >= 6 else None
     if normals is not None and not np.all(np.isfinite(normals)):
         normals = None  # normals are optional; broken ones are dropped rather than trusted
+    if normals is not None:
+        length = np.linalg.norm(normals, axis=1)
+        if not 0.9 < float(np.median(length)) < 1.1:  # colours (0-255 or 0-1), intensities: not normals
+            log.warning("%s: columns 4-6 are not unit normals (median length %.3g), so they are ignored; the "
+                        "points go through the raw-points route", source, float(np.median(length)))
+            normals = None
+        else:
+            normals = normals / np.maximum(length, 1e-12)[:, None]
     return InputGeometry(source, PointSet(data[:, :3], normals))
 
 
@@ -118,6 +126,14 @@ def _read_with_trimesh(path: Path, suffix: str) -> InputGeometry:
         else:
             raise InputError(f"{path} holds no geometry (no vertices or faces were found)")
     if isinstance(loaded, trimesh.Trimesh):
+        faces = np.asarray(loaded.faces)
+        bad = np.any((faces < 0) | (faces >= len(loaded.vertices)), axis=1) if faces.size else np.zeros(0, bool)
+        if bad.any():  # index past the vertices, or negative (PLY has no relative indices): never wrap them
+            if bad.all():
+                raise InputError(f"{path}: every face refers to a vertex outside 0..{len(loaded.vertices) - 1}")
+            log.warning("%s: dropped %d face(s) of %d that refer to a vertex outside 0..%d", path, int(bad.sum()),
+                        len(faces), len(loaded.vertices) - 1)
+            loaded = trimesh.Trimesh(loaded.vertices, faces[~bad], process=False)
         # OBJ normals / UVs split a vertex per face corner; merged, faces share edges again (sharp-edge
         # detection, watertightness)
         loaded.merge_vertices(merge_tex=True, merge_norm=True)
