@@ -46,8 +46,11 @@ class BrokenPlugin:
 
 
 def _first_doc_line(obj: Any) -> str:
+    """The docstring's first sentence, joined across its wrapped lines (its first paragraph if it has no stop)."""
     doc = (getattr(obj, "__doc__", None) or "").strip()
-    return doc.splitlines()[0] if doc else ""
+    paragraph = " ".join(line.strip() for line in doc.split("\n\n")[0].splitlines())
+    end = paragraph.find(". ")
+    return paragraph[: end + 1] if end >= 0 else paragraph
 
 
 class Registry:

@@ -170,3 +170,15 @@ def test_external_stage_plugin_runs_inside_the_pipeline(cli):
     assert broken.returncode == 2 and "Traceback" not in broken.stderr
     assert "stage plugin 'broken' (entry point 'broken = qmdf_broken:Thing' of qmdf-centroid 0.3) failed to load: " \
            "RuntimeError: the plugin author broke this" in broken.stderr
+
+
+def test_plugin_listing_and_bench_help_read_well():
+    """'losss' and docs cut mid-sentence in the listing; `python -m qmdf.bench --help` exited 2."""
+    from qmdf.bench.__main__ import main as bench_main
+    from qmdf.plugins.__main__ import listing
+    from qmdf.registry import STAGES
+
+    text = listing()
+    assert "losses (entry-point group" in text and "losss" not in text
+    assert STAGES.get("sheet").doc.endswith(".") and "\n" not in STAGES.get("sheet").doc
+    assert bench_main(["--help"]) == 0 and bench_main([]) == 2

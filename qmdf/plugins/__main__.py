@@ -11,7 +11,8 @@ def listing() -> str:
     load_all()
     lines = []
     for reg in all_registries():
-        lines.append(f"{reg.kind}s (entry-point group '{reg.group}'):")
+        plural = reg.kind + ("es" if reg.kind.endswith("s") else "s")
+        lines.append(f"{plural} (entry-point group '{reg.group}'):")
         for e in reg.entries():
             io = ""
             if reg is STAGES:

@@ -17,7 +17,7 @@ from qmdf.stages.inputs import input_data
 
 @dataclass
 class ExportConfig:
-    reconstruction_resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction; 0 skips it")
+    reconstruction_resolution: int = param(128, ge=16, le=1024, doc="grid nodes along the meshed reconstruction's longest side")
     picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
     radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius: data (distance to the input mesh or "
                         "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data")
