@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -54,11 +55,31 @@ def task(cfg) -> dict:
     return result.manifest
 
 
+#: what Hydra's override grammar takes unquoted in a value (a path with a space, a parenthesis or a non-ASCII
+#: letter is a grammar error unless quoted)
+_PLAIN_VALUE = re.compile(r"[A-Za-z0-9_./\\:~+-]*")
+_PATH_KEYS = ("input.path=", "cache.dir=")
+
+
+def quote_paths(argv: list[str]) -> list[str]:
+    """``input.path=my scan (1).ply`` as Hydra needs it: the value quoted. The shell has already removed the
+    user's own quotes, so a path with spaces, parentheses or accents would otherwise stop at Hydra's grammar."""
+    out = []
+    for arg in argv:
+        key = next((k for k in _PATH_KEYS if arg.startswith(k)), None)
+        value = arg[len(key):] if key else ""
+        if key and value and value[0] not in "'\"" and not _PLAIN_VALUE.fullmatch(value):
+            arg = key + "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
+        out.append(arg)
+    return out
+
+
 def main() -> None:
     import hydra
 
     from qmdf.config import register_configs
 
+    sys.argv[1:] = quote_paths(sys.argv[1:])
     # One fresh name per invocation: the run (or the sweep) directory. Jobs of a multirun share it.
     os.environ[ENV_VAR] = new_run_name()
     register_configs()

@@ -46,6 +46,8 @@ class InputConfig:
                 problems.append(("shape", SHAPES.why_missing(self.shape)))
         elif not self.path:
             problems.append(("path", "is empty; set a file path or null for the procedural shape"))
+        elif Path(self.path).is_dir():
+            problems.append(("path", f"'{self.path}' is a directory; give a mesh or point-cloud file"))
         elif Path(self.path).suffix.lower() not in INPUT_SUFFIXES:
             problems.append(("path", f"unsupported file type '{Path(self.path).suffix}'; use one of {', '.join(INPUT_SUFFIXES)}"))
         return problems

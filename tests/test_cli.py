@@ -182,3 +182,19 @@ def test_plugin_listing_and_bench_help_read_well():
     assert "losses (entry-point group" in text and "losss" not in text
     assert STAGES.get("sheet").doc.endswith(".") and "\n" not in STAGES.get("sheet").doc
     assert bench_main(["--help"]) == 0 and bench_main([]) == 2
+
+
+def test_paths_with_spaces_parentheses_and_accents_just_work(cli):
+    """Hydra's grammar refused them raw; a directory was reported as "unsupported file type ''"."""
+    from qmdf.__main__ import quote_paths
+
+    assert quote_paths(["input.path=a b.ply", "input.path=plain/x.ply", "input.path='q d.ply'", "seed=1"]) == \
+        ["input.path='a b.ply'", "input.path=plain/x.ply", "input.path='q d.ply'", "seed=1"]
+    folder = cli.cwd / "my scans (é)"
+    folder.mkdir()
+    np.savetxt(folder / "c.xyz", np.random.default_rng(0).uniform(-1, 1, (300, 3)))
+    proc = cli(f"input.path={folder / 'c.xyz'}", STAGES_ONLY_SAMPLE)
+    assert proc.returncode == 0, proc.stderr
+    proc = cli(f"input.path={folder}", STAGES_ONLY_SAMPLE)
+    assert proc.returncode != 0 and "is a directory; give a mesh or point-cloud file" in proc.stderr
+    assert "Traceback" not in proc.stderr
