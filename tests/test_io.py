@@ -189,3 +189,13 @@ def test_atomic_writes_follow_the_umask(tmp_path):
         assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o664
     finally:
         os.umask(old)
+
+
+def test_an_open_mesh_is_reported(caplog):
+    import logging
+
+    from qmdf.stages.sample import warn_if_open
+
+    log = logging.getLogger("test")
+    assert warn_if_open(np.asarray(SPHERE.faces), "sphere", log) == 0 and "open mesh" not in caplog.text
+    assert warn_if_open(np.asarray(SPHERE.faces)[5:], "holed", log) > 0 and "holed is an open mesh" in caplog.text

@@ -105,6 +105,7 @@ class Sample(Stage):
         if geom.is_mesh:
             clean = outward_normals(sample_surface(unit.points, geom.faces, ctx.cfg.n_points, rng), unit.points, geom.faces, ctx.log)
             ctx.save("surface", _trimesh(unit.points, geom.faces))
+            warn_if_open(geom.faces, geom.source, ctx.log)
             what = f"mesh with {len(geom.points)} vertices, {len(geom.faces)} faces; sampled {len(clean)} points"
         else:
             clean = unit
@@ -126,6 +127,18 @@ class Sample(Stage):
         ctx.save("clean_points", clean)
         ctx.save("normalization", norm)
         ctx.log.info("input %s: %s; unit-box scale %.6g", geom.source, what, norm.scale)
+
+
+def warn_if_open(faces: np.ndarray, source: str, log) -> int:
+    """Say so when a mesh has boundary edges (holes, open scans): inside/outside then comes from the generalized
+    winding number, which closes small holes but guesses across large ones. Returns the boundary edge count."""
+    from qmdf.geometry.metrics import single_face_edges
+
+    open_edges = len(single_face_edges(faces))
+    if open_edges:
+        log.warning("%s is an open mesh (%d boundary edges): inside and outside come from its winding number, "
+                    "which bridges small holes; check 01_train/slices.png across large ones", source, open_edges)
+    return open_edges
 
 
 def _trimesh(vertices: np.ndarray, faces: np.ndarray):
