@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import signal
 import sys
 from pathlib import Path
 
@@ -41,8 +42,21 @@ def task(cfg) -> dict:
 
     hc = HydraConfig.get()
     run_dir = Path(hc.runtime.output_dir)
+    received = []
+
+    def on_term(signum, frame):  # a scheduler's SIGTERM ends the run as Ctrl-C does, with its own exit code
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
     try:
         result = Pipeline(cfg, run_dir, base_dir=Path(hc.runtime.cwd)).run()
+    except KeyboardInterrupt:
+        code = 128 + (received[-1] if received else signal.SIGINT)
+        log.error("interrupted (%s); the run is marked interrupted in %s", signal.Signals(code - 128).name,
+                  run_dir / "manifest.json")
+        sys.stderr.flush()
+        raise SystemExit(code) from None
     except QmdfError as exc:
         if not (run_dir / "manifest.json").exists():  # the run never started: say so on disk too
             write_json(run_dir / "manifest.json", {"status": "failed", "error": str(exc), "stages": []})

@@ -37,3 +37,11 @@ class InputError(QmdfError):
 
 class PipelineError(QmdfError):
     """The configured pipeline cannot run (unknown stage, broken wiring, broken plugin)."""
+
+
+class Interrupted(QmdfError):
+    """The user (Ctrl-C: SIGINT) or a scheduler (SIGTERM) stopped the run; what could be kept was kept."""
+
+    def __init__(self, message: str, signal_number: int):
+        super().__init__(message)
+        self.exit_code = 128 + signal_number  # the shell's convention: 130 for SIGINT, 143 for SIGTERM

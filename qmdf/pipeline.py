@@ -29,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 from qmdf import config as config_mod
 from qmdf import __version__
 from qmdf.artifacts import ArtifactKind, file_digest, write_json
-from qmdf.errors import PipelineError, QmdfError
+from qmdf.errors import Interrupted, PipelineError, QmdfError
 from qmdf.registry import STAGES
 from qmdf.stage import RunSettings, Stage, StageContext
 
@@ -199,7 +199,7 @@ class Pipeline:
                 manifest["stages"].append(record)
                 self._write_manifest(manifest)
         except BaseException as exc:
-            manifest["status"] = "failed"
+            manifest["status"] = "interrupted" if isinstance(exc, (Interrupted, KeyboardInterrupt)) else "failed"
             manifest["error"] = str(exc) if isinstance(exc, QmdfError) else f"{type(exc).__name__}: {exc}"
             manifest["finished"] = dt.datetime.now().isoformat(timespec="microseconds")
             self._write_manifest(manifest)

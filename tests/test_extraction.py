@@ -249,3 +249,12 @@ def test_contraction_stays_inside_the_shape(weight):
         assert r.min() > 0.33  # every vertex left: the ridge is behind them
     else:
         assert r.max() < 0.29
+
+
+def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(compose_cfg, tmp_path, caplog):
+    """The torus's circle cannot go below three vertices: asked for two with no slack, the sheet is judged not
+    compact, and export writes the membrane (faces, two layers) as the MAT with a warning, the sheet kept."""
+    res = Pipeline(compose_cfg(*CHAIN, "sheet.target_vertices=2", "sheet.compact_slack=1"), tmp_path / "run", tmp_path).run()
+    assert res.load("sheet_stats")["compact"] is False and len(res.load("sheet").faces) == 0
+    assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
+    assert "the single sheet is not compact" in caplog.text

@@ -188,3 +188,41 @@ def test_same_seed_same_field(compose_cfg, tmp_path):
         fields[name] = torch.load(res.path("field"), weights_only=True)["state_dict"]
     diff = {k: max((fields[k][p] - fields["a"][p]).abs().max().item() for p in fields["a"]) for k in "bc"}
     assert diff["b"] == 0.0 and diff["c"] > 1e-3, diff
+
+
+@pytest.mark.parametrize("signum, code", [(2, 130), (15, 143)])
+def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_field(compose_cfg, tmp_path, signum, code):
+    """Ctrl-C (SIGINT) or a scheduler's SIGTERM at step 30 of 80 with checkpoints only every 50: the run ends as
+    interrupted with 128 + the signal, keeps a checkpoint of step 30 (it once lost all work since the last periodic
+    one and exited 1 with "SystemExit: 1" in the manifest), and the rerun resumes there and ends with the weights
+    of a run that was never interrupted."""
+    import json
+    import os
+
+    from qmdf.errors import Interrupted
+    from qmdf.fields import module as module_mod
+
+    original = module_mod.FieldModule.training_step
+
+    def signal_at_30(self, batch, idx):
+        if self.global_step == 30:
+            os.kill(os.getpid(), signum)  # a real signal, delivered to this process's main thread
+        return original(self, batch, idx)
+
+    settings = ("train.steps=80", "train.checkpoint_every=50")
+    module_mod.FieldModule.training_step = signal_at_30
+    try:
+        with pytest.raises(Interrupted, match="at training step 30 of 80: checkpoint saved") as info:
+            run(compose_cfg, tmp_path, *settings, name="a")
+    finally:
+        module_mod.FieldModule.training_step = original
+    assert info.value.exit_code == code
+    assert json.loads((tmp_path / "a" / "manifest.json").read_text())["status"] == "interrupted"
+    (work,) = (tmp_path / "cache" / "train").glob("*.work/last.ckpt")
+    assert torch.load(work, weights_only=True)["global_step"] == 30
+    res = run(compose_cfg, tmp_path, *settings, name="b")
+    assert res.load("training")["history"][-1]["step"] == 70
+    whole = run(compose_cfg, tmp_path, *settings, f"cache.dir={tmp_path / 'other_cache'}", name="c")
+    resumed = torch.load(res.path("field"), weights_only=True)["state_dict"]
+    straight = torch.load(whole.path("field"), weights_only=True)["state_dict"]
+    assert max((resumed[k] - straight[k]).abs().max().item() for k in straight) < 1e-5

@@ -38,7 +38,8 @@ class Export(Stage):
 
     Config = ExportConfig
     inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
-    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON, "sheet": MAT}
+    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON, "sheet": MAT,
+                       "sheet_stats": JSON}
     outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
                "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"),
                "mat_obj_input_units": file_kind(".obj"), "reconstruction": MESH,
@@ -53,7 +54,8 @@ class Export(Stage):
         mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
         membrane = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
         ctx.save("membrane_mat", membrane)
-        mat = ctx.load("sheet") if ctx.has("sheet") else membrane
+        use_sheet = ctx.has("sheet") and (ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True)
+        mat = ctx.load("sheet") if use_sheet else membrane
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
@@ -78,4 +80,4 @@ class Export(Stage):
                 render_mesh(ctx.stage_dir / "covering_after.png", membrane.vertices, membrane.faces,
                             title="after contraction (the membrane)")
         ctx.log.info("MAT (%s): %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
-                     "single sheet" if ctx.has("sheet") else "membrane", len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))
+                     "single sheet" if use_sheet else "membrane", len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))

@@ -2,7 +2,9 @@
 oriented or raw points: ``qmdf.fields.supervision``), or by the raw points alone as in the paper."""
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
 import sys
 
 import numpy as np
@@ -11,7 +13,7 @@ from typing import Any
 
 from qmdf import schema
 from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS
-from qmdf.errors import QmdfError
+from qmdf.errors import Interrupted, QmdfError
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -197,18 +199,31 @@ def fit(ctx: StageContext, cfg: TrainConfig, module, steps: int) -> str:
     done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
     checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
                                                      every_n_train_steps=cfg.checkpoint_every)
+
+    class SaveOnInterrupt(L.pytorch.callbacks.Callback):
+        def on_exception(self, trainer, pl_module, exception):
+            if isinstance(exception, KeyboardInterrupt) and trainer.global_step > 0:
+                trainer.save_checkpoint(last)
+
     show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
     trainer = L.Trainer(
         max_steps=steps, max_epochs=1, accelerator=cfg.accelerator, devices=1, logger=_logger(cfg, ctx),
-        callbacks=[checkpoint], enable_progress_bar=show_bar, enable_model_summary=False,
+        callbacks=[checkpoint, SaveOnInterrupt()], enable_progress_bar=show_bar, enable_model_summary=False,
         log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work),
     )
     if resume:
         ctx.log.info("resuming from %s (step %d of %d)", last, done, steps)
+    stop = _StopSignal()
     try:
-        trainer.fit(module, train_dataloaders=loader(steps), ckpt_path=resume)
-        if trainer.global_step != steps:
+        with stop.terminate_as_interrupt():
+            trainer.fit(module, train_dataloaders=loader(steps), ckpt_path=resume)
+        if trainer.global_step != steps and not stop.received:
             raise QmdfError(f"training stopped at step {trainer.global_step} of {steps}; its result is not kept")
+    except (KeyboardInterrupt, SystemExit) as exc:
+        # Lightning turns Ctrl-C into SystemExit(1) after its on_exception callbacks: the checkpoint is saved
+        if not (stop.received or isinstance(exc, KeyboardInterrupt)):
+            raise
+        stop.received = stop.received or signal.SIGINT
     except Diverged as exc:
         keep = f"; the last good checkpoint is {last}" if last.exists() else ""
         raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
@@ -222,9 +237,39 @@ def fit(ctx: StageContext, cfg: TrainConfig, module, steps: int) -> str:
         # Nothing of Lightning may outlive the stage: its loggers would flush into this scratch folder
         # after the pipeline moved it into place.
         device = str(trainer.strategy.root_device)
+        at = trainer.global_step
         del trainer
         gc.collect()
+    if stop.received:
+        raise Interrupted(f"{signal.Signals(stop.received).name} at training step {at} of {steps}: checkpoint saved at "
+                          f"{last}; run the same command again to resume", int(stop.received))
     return device
+
+
+class _StopSignal:
+    """Ctrl-C (SIGINT) and SIGTERM (what a cluster scheduler sends) end a training the same way: Lightning stops,
+    ``SaveOnInterrupt`` writes the checkpoint, and the run ends as interrupted with 128 + the signal's number."""
+
+    def __init__(self):
+        self.received = 0
+
+    @contextlib.contextmanager
+    def terminate_as_interrupt(self):
+        def handler(signum, frame):
+            self.received = signum
+            raise KeyboardInterrupt
+
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            for s in old:
+                signal.signal(s, handler)
+        except ValueError:  # not the main thread (an API caller's worker): signals stay theirs
+            old = {}
+        try:
+            yield
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
 
 
 def _logger(cfg: TrainConfig, ctx: StageContext):
