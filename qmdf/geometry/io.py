@@ -100,12 +100,15 @@ def _from_columns(data: np.ndarray, source: str) -> InputGeometry:
         normals = None  # normals are optional; broken ones are dropped rather than trusted
     if normals is not None:
         length = np.linalg.norm(normals, axis=1)
-        if not 0.9 < float(np.median(length)) < 1.1:  # colours (0-255 or 0-1), intensities: not normals
-            log.warning("%s: columns 4-6 are not unit normals (median length %.3g), so they are ignored; the "
-                        "points go through the raw-points route", source, float(np.median(length)))
+        # colours (0-255 or 0-1) and intensities never go negative; a closed surface's normals point every way.
+        # Scaled normals (GCNO's files: lengths around 1e-4) are normals all the same.
+        if normals.min() >= 0 or not np.all(length > 0):
+            log.warning("%s: columns 4-6 are not normals (%s), so they are ignored; the points go through the "
+                        "raw-points route", source, "no negative component: colours?" if normals.min() >= 0
+                        else "some have zero length")
             normals = None
         else:
-            normals = normals / np.maximum(length, 1e-12)[:, None]
+            normals = normals / length[:, None]
     return InputGeometry(source, PointSet(data[:, :3], normals))
 
 
