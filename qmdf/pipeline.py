@@ -19,6 +19,7 @@ import json
 import logging
 import os
 import shutil
+import socket
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -136,6 +137,35 @@ def _section(cfg: DictConfig | dict, key: str) -> Any:
     return OmegaConf.to_container(value, resolve=True) if isinstance(value, DictConfig) else value
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def abandoned_run(run_dir: Path) -> dict | None:
+    """A manifest left 'running' by a process of this host that is gone (killed, SIGKILL, power loss): say so,
+    remove its half-written stage folders, and return what it was (``status: abandoned``) for the new manifest."""
+    path = run_dir / "manifest.json"
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if old.get("status") != "running" or old.get("host") != socket.gethostname() or not old.get("pid") \
+            or _alive(int(old["pid"])):
+        return None
+    for partial in run_dir.glob(".*.partial"):
+        shutil.rmtree(partial, ignore_errors=True)
+    log.warning("the previous run in %s was abandoned (process %s, started %s, is gone); its partial stage folders "
+                "are removed", run_dir, old["pid"], old.get("started"))
+    return {"status": "abandoned", "pid": old["pid"], "started": old.get("started"),
+            "stages_done": [s["name"] for s in old.get("stages", [])]}
+
+
 class Pipeline:
     def __init__(self, cfg: DictConfig, run_dir: Path, base_dir: Path):
         self.base_dir = Path(base_dir).resolve()
@@ -174,18 +204,22 @@ class Pipeline:
     # -- running -------------------------------------------------------------------------------
     def run(self) -> RunResult:
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        previous = abandoned_run(self.run_dir)
         OmegaConf.save(self.cfg, self.run_dir / "config.yaml", resolve=True)
         plan = self.plan
         manifest: dict[str, Any] = {
             "qmdf_version": __version__,
             "run_dir": str(self.run_dir),
             "started": dt.datetime.now().isoformat(timespec="microseconds"),
+            "pid": os.getpid(), "host": socket.gethostname(),
             "status": "running",
             "pipeline": list(self.cfg["pipeline"]["stages"]),
             "unavailable_stages": plan.unavailable,
             "not_run": plan.not_run,
             "stages": [],
         }
+        if previous:
+            manifest["previous"] = previous
         if plan.unavailable:
             log.warning(
                 "stages not available in qmdf %s: %s. Running only: %s",

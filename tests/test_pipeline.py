@@ -202,3 +202,26 @@ def test_manifest_records_every_artifact(compose_cfg, tmp_path):
 def test_run_names_are_unique():
     names = {new_run_name() for _ in range(1000)}
     assert len(names) == 1000
+
+
+def test_a_run_whose_process_died_is_recognised_as_abandoned(compose_cfg, tmp_path, caplog):
+    """After SIGKILL the manifest said 'running' forever and a hidden .01_train.partial/ stayed."""
+    import socket
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    run_dir = tmp_path / "killed"
+    (run_dir / ".01_train.partial").mkdir(parents=True)
+    (run_dir / "manifest.json").write_text(json.dumps({"status": "running", "pid": dead.pid, "host": socket.gethostname(),
+                                                       "started": "then", "stages": [{"name": "sample"}]}))
+    result = run(compose_cfg, tmp_path, "pipeline.stages=[sample]", run_dir=run_dir)
+    assert result.manifest["previous"] == {"status": "abandoned", "pid": dead.pid, "started": "then", "stages_done": ["sample"]}
+    assert not (run_dir / ".01_train.partial").exists() and "was abandoned" in caplog.text
+    # a run still alive (this very process) is never taken for abandoned
+    alive = tmp_path / "alive"
+    alive.mkdir()
+    (alive / "manifest.json").write_text(json.dumps({"status": "running", "pid": __import__("os").getpid(),
+                                                     "host": socket.gethostname(), "stages": []}))
+    assert "previous" not in run(compose_cfg, tmp_path, "pipeline.stages=[sample]", run_dir=alive).manifest
