@@ -39,14 +39,11 @@ class MedialMesh:
 
     def lone_edges(self) -> np.ndarray:
         """The edges that bound no face (where the medial axis is a curve), each once."""
+        from qmdf.geometry.metrics import edges_off_polygons
+
         e = np.sort(self.edges, axis=1)
         e = np.unique(e[e[:, 0] != e[:, 1]], axis=0) if len(e) else e
-        f = self.faces
-        if not len(f) or not len(e):
-            return e
-        sides = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
-        base = int(max(e.max(), sides.max())) + 1
-        return e[~np.isin(e[:, 0] * base + e[:, 1], sides[:, 0] * base + sides[:, 1])]
+        return e[edges_off_polygons(e, self.faces)]
 
 
 def write_ma(path: Path, mat: MedialMesh) -> None:

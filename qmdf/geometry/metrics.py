@@ -127,22 +127,35 @@ def euler_tetrahedral(n_vertices: int, tets: np.ndarray) -> int:
 
 
 # --- boundaries and their smoothness -----------------------------------------------------------------------
-def single_face_edges(faces: np.ndarray) -> np.ndarray:
-    """Edges adjacent to exactly one face: the boundary of a single-layer medial mesh."""
+def _face_edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each distinct edge of the faces and how many faces hold it."""
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    return np.unique(e, axis=0, return_counts=True)
+
+
+def single_face_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges adjacent to exactly one face: the boundary of a single-layer medial mesh."""
+    uniq, counts = _face_edge_counts(faces)
     return uniq[counts == 1]
 
 
 def seam_edges(faces: np.ndarray) -> np.ndarray:
     """Edges of three or more faces: where sheets of a medial mesh meet."""
-    f = np.asarray(faces, np.int64).reshape(-1, 3)
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    if not len(e):
-        return e
-    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    uniq, counts = _face_edge_counts(faces)
     return uniq[counts >= 3]
+
+
+def edges_off_polygons(edges: np.ndarray, polygons: np.ndarray) -> np.ndarray:
+    """Mask of the ``edges`` that are no side of any of the ``polygons`` (triangles, squares: (P, k) corner
+    indices in cyclic order): a medial mesh's lone edges, where the axis is a curve."""
+    edges = np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1)
+    p = np.asarray(polygons, np.int64)
+    if not len(edges) or not len(p):
+        return np.ones(len(edges), bool)
+    sides = np.sort(np.concatenate([p[:, [k, (k + 1) % p.shape[1]]] for k in range(p.shape[1])]), axis=1)
+    base = int(max(edges.max(), sides.max())) + 1
+    return ~np.isin(edges[:, 0] * base + edges[:, 1], sides[:, 0] * base + sides[:, 1])
 
 
 def fold_edges(vertices: np.ndarray, faces: np.ndarray, min_fold_deg: float = 150.0) -> np.ndarray:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from qmdf.geometry.metrics import edges_off_polygons
 from qmdf.medial.thinning import Collapse, CubicalComplex
 
 
@@ -107,7 +108,7 @@ def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node
 
     if not len(edges):
         return np.zeros(0, bool)
-    lone = _lone_mask(edges, squares)
+    lone = edges_off_polygons(edges, squares)
     length = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)
     mid = x[edges].mean(1)
     out = lone & (length < short)
@@ -130,19 +131,9 @@ def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node
     return out
 
 
-def _lone_mask(edges: np.ndarray, squares: np.ndarray) -> np.ndarray:
-    if not len(squares):
-        return np.ones(len(edges), bool)
-    s = squares
-    sides = np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 3]], s[:, [3, 0]]]), axis=1)
-    e = np.sort(edges, axis=1)
-    base = int(max(e.max(), sides.max())) + 1
-    return ~np.isin(e[:, 0] * base + e[:, 1], sides[:, 0] * base + sides[:, 1])
-
-
 def _lone_edges(cx: CubicalComplex) -> np.ndarray:
     """The 1-cells that are no square's side."""
-    return np.sort(cx.edges, axis=1)[_lone_mask(cx.edges, cx.squares)] if len(cx.edges) else cx.edges
+    return np.sort(cx.edges, axis=1)[edges_off_polygons(cx.edges, cx.squares)]
 
 
 def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.ndarray, membrane_vertices: np.ndarray,
@@ -163,17 +154,16 @@ def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.
     col = Collapse(inside, q, _keep_levels(inside, q, eps, valley_share))
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
+    dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
     for _ in range(20):  # until nothing more is released (a released layer can expose the next)
-        grid_points = lo + cx.nodes * spacing
-        dist, x = mesh_distance(membrane_vertices, membrane_faces, grid_points)
         far = dist > off_axis * h
         s, e = cx.squares, cx.edges
+        node_q = q[tuple(cx.nodes.T)]
         off_sq = far[s].mean(1) > 0.5 if len(s) else np.zeros(0, bool)
         off_edge = far[e].all(1) if len(e) else np.zeros(0, bool)
-        off_edge |= _redundant_edges(x, e, s, q[tuple(cx.nodes.T)], fin_area * h, 0.75 * h)
-        area = _quad_areas(x, s)
-        flat = area < fin_area * float(np.prod(np.sort(spacing)[:2]))
-        soft_sq = off_sq | flat | _covered_squares(x, s, ~flat, q[tuple(cx.nodes.T)], 0.5 * h)
+        off_edge |= _redundant_edges(x, e, s, node_q, fin_area * h, 0.75 * h)
+        flat = _quad_areas(x, s) < fin_area * float(np.prod(np.sort(spacing)[:2]))
+        soft_sq = off_sq | flat | _covered_squares(x, s, ~flat, node_q, 0.5 * h)
         if not (soft_sq.any() or off_edge.any()):
             break
         col.soften(cx, soft_sq, off_edge)
@@ -181,7 +171,7 @@ def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.
         cx = col.run()
         if len(cx.nodes) + len(cx.edges) + len(cx.squares) == cells:
             break
-    x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)[1]
+        dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
     x = _centre_curves(x, cx.squares, membrane_vertices, h)
     faces = _triangulate(x, cx.squares)
     stats = {"collapse_chi": cx.euler, "cubes_left": cx.cubes, "first_pass": first, "squares": int(len(cx.squares))}

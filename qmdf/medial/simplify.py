@@ -206,7 +206,7 @@ def simplify_medial_mesh(vertices: np.ndarray, radii: np.ndarray, edges: np.ndar
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
     n = len(m)
-    tips = np.zeros(n, bool) if tips is None else np.asarray(tips, bool)
+    tips = np.zeros(n, bool) if tips is None else np.array(tips, bool)  # merged tips are marked in it
     tri = m[faces, :3]
     mean_area = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).mean()) \
         if len(faces) else 0.0
