@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: setup run test plugins clean-runs
+.PHONY: setup run test lint plugins clean-runs
 
 setup:
 	@bash scripts/setup.sh
@@ -16,6 +16,9 @@ run: setup
 
 test: setup
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+lint: setup
+	$(PY) -m ruff check qmdf tests
 
 plugins: setup
 	$(PY) -m qmdf.plugins

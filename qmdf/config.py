@@ -14,7 +14,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from qmdf import schema
 from qmdf.errors import ConfigError, Problem
-from qmdf.registry import SHAPES, STAGES, load_all
+from qmdf.plugins.registry import load_all
+from qmdf.registry import SHAPES, STAGES
 from qmdf.schema import param
 
 #: The method's stages in order (paper Fig. 4). Planned built-ins that are not registered yet are reported

@@ -109,6 +109,19 @@ class RunResult:
     manifest: dict
     artifacts: dict[str, ArtifactRecord] = field(default_factory=dict)
 
+    @classmethod
+    def open(cls, run_dir: Path | str) -> "RunResult":
+        """A finished run from its folder: its manifest and the artifacts of its stages, the latest of each name
+        (as a later stage reads them)."""
+        run_dir = Path(run_dir)
+        path = run_dir / "manifest.json"
+        if not path.is_file():
+            raise PipelineError(f"{run_dir} has no manifest.json: not a run folder")
+        manifest = json.loads(path.read_text())
+        artifacts = {name: ArtifactRecord(name, a["kind"], run_dir / a["path"], a.get("sha256", ""), st["name"])
+                     for st in manifest.get("stages", []) for name, a in (st.get("artifacts") or {}).items()}
+        return cls(run_dir, manifest, artifacts)
+
     @property
     def complete(self) -> bool:
         return self.manifest["status"] == "complete"
@@ -184,6 +197,13 @@ class Pipeline:
         write_json(self.run_dir / "manifest.json", manifest)
 
     # -- cache keys ------------------------------------------------------------------------
+    def _hashed_section(self, key: str) -> Any:
+        """A config section as it enters a cache key: a stage's own through its ``cache_config``."""
+        value = _section(self.cfg, key)
+        if isinstance(value, dict) and key in STAGES:
+            return STAGES.get(key).obj.cache_config(value)
+        return value
+
     def stage_key(self, step: Step, inputs: dict[str, ArtifactRecord], ctx: StageContext) -> str:
         st = step.stage
         material = {
@@ -191,8 +211,8 @@ class Pipeline:
             "class": f"{type(st).__module__}.{type(st).__qualname__}",
             "version": st.version,
             "qmdf": __version__,  # an upgrade never serves results of older code
-            "config": _section(self.cfg, step.name),
-            "deps": {k: _section(self.cfg, k) for k in st.config_deps},
+            "config": self._hashed_section(step.name),
+            "deps": {k: self._hashed_section(k) for k in st.config_deps},
             "inputs": {k: v.digest for k, v in sorted(inputs.items())},
             "fingerprint": st.fingerprint(ctx),
         }

@@ -59,6 +59,12 @@ class Stage:
     #: Bump when the stage's code changes its results, so that old cache entries are not reused.
     version: ClassVar[str] = "1"
 
+    @classmethod
+    def cache_config(cls, section: dict) -> dict:
+        """The part of the stage's config section that its result depends on, for the cache key (all of it,
+        unless a stage knows better: train hashes only the chosen backbone's settings)."""
+        return section
+
     def fingerprint(self, ctx: "StageContext") -> str:
         """Extra cache-key material that the config does not capture (e.g. an input file's content)."""
         return ""

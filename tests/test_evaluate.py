@@ -33,7 +33,7 @@ def test_score_of_the_closed_form_ellipsoid_mat():
 
 def test_score_against_points_matches_score_against_the_mesh():
     mesh = get_shape("torus").mesh(128)
-    from qmdf.stages.sample import sample_surface
+    from qmdf.geometry.sampling import sample_surface
 
     pts = sample_surface(mesh.vertices, mesh.faces, 200_000, np.random.default_rng(0)).points
     on_mesh = score_mat(torus_mat(), mesh.vertices, mesh.faces, samples=4000, resolution=48)
@@ -139,3 +139,45 @@ def test_edge_count_includes_lone_edges():
     mesh = get_shape("torus").mesh(32)
     m = score_mat(torus_mat(40), mesh.vertices, mesh.faces, samples=300, resolution=24)
     assert m["edges"] == 40 and m["faces"] == 0 and m["chi"] == 0  # a loop of 40 cones
+
+
+def test_evaluate_reference_scores_a_sparse_cloud_against_its_source(compose_cfg, tmp_path):
+    """A 600-point torus cloud scored as itself measures its gaps; against the mesh it came from (given in the
+    input's units, 10x here) the exact MAT scores ~0. A reference that is not a file fails the config check."""
+    import trimesh
+
+    from qmdf.api import compose
+    from qmdf.artifacts import MAT, POINTS
+    from qmdf.config import check
+    from qmdf.errors import ConfigError
+    from qmdf.geometry.sampling import sample_surface
+    from qmdf.pipeline import Pipeline
+    from qmdf.registry import STAGES
+    from qmdf.stage import Stage, register_stage
+
+    torus = get_shape("torus").mesh(256)
+    v = np.asarray(torus.vertices) * 10.0
+    trimesh.Trimesh(v, torus.faces).export(tmp_path / "torus.ply")
+    pts = sample_surface(v, np.asarray(torus.faces), 600, np.random.default_rng(0)).points
+    np.savetxt(tmp_path / "cloud.xyz", pts)
+
+    class ExactTorusMat(Stage):
+        inputs = {"points": POINTS}
+        outputs = {"mat": MAT}
+
+        def run(self, ctx):  # the cloud's bounding box is the torus's, up to its sampling
+            ctx.save("mat", torus_mat())
+
+    register_stage("exact_torus_mat")(ExactTorusMat)
+    try:
+        base = [f"input.path={tmp_path / 'cloud.xyz'}", "pipeline.stages=[sample,exact_torus_mat,evaluate]",
+                "evaluate.samples=3000", "evaluate.resolution=48", "evaluate.picture=false"]
+        own = Pipeline(compose_cfg(*base), tmp_path / "own", tmp_path).run().load("metrics")
+        ref = Pipeline(compose_cfg(*base, f"evaluate.reference={tmp_path / 'torus.ply'}"), tmp_path / "ref",
+                       tmp_path).run().load("metrics")
+    finally:
+        STAGES.remove("exact_torus_mat")
+    assert own["reference"] == "input points" and own["chamfer"] > 5e-3  # the gaps of 600 points
+    assert ref["reference"].startswith("evaluate.reference (torus.ply)") and ref["chamfer"] < 2e-3
+    with pytest.raises(ConfigError, match="evaluate.reference"):
+        check(compose([f"evaluate.reference={tmp_path / 'missing.ply'}"]))

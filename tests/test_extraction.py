@@ -111,7 +111,7 @@ def test_volume_gradients_match_finite_differences():
     from scipy.spatial import Delaunay
 
     from qmdf.geometry.tets import signed_volumes
-    from qmdf.stages.contract import volume_and_gradient
+    from qmdf.medial.contraction import volume_and_gradient
 
     sphere = trimesh.creation.icosphere(2)
     x, f = np.asarray(sphere.vertices) * 0.3, np.asarray(sphere.faces)
@@ -219,7 +219,7 @@ class _RidgeSphere:
 
 
 def test_inside_q_continues_q_as_mf_plus_sdf_outside():
-    from qmdf.stages.contract import InsideQ
+    from qmdf.medial.contraction import InsideQ
 
     rng = np.random.default_rng(0)
     p = rng.normal(size=(500, 3)) * 0.3
@@ -239,11 +239,11 @@ def test_contraction_stays_inside_the_shape(weight):
     """A covering just outside the ridge (the cover stage allows up to two voxels outside): with the paper's q
     (weight 0) its vertices run outward, with q continued as mf + sdf they come back and go in (this field's q
     falls all the way to the centre)."""
-    from qmdf.stages.contract import ContractConfig, contract
+    from qmdf.medial.contraction import contract
 
     s = trimesh.creation.icosphere(subdivisions=3, radius=0.302)
-    cfg = ContractConfig(iterations=300, lattice=0, lambda_volume=0.0, lambda_laplacian=1.0, outside_weight=weight)
-    x = contract(_RidgeSphere(), np.asarray(s.vertices), np.asarray(s.faces), None, cfg)[0]
+    x = contract(_RidgeSphere(), np.asarray(s.vertices), np.asarray(s.faces), iterations=300, lattice=0,
+                 lambda_volume=0.0, lambda_laplacian=1.0, outside_weight=weight)[0]
     r = np.linalg.norm(x, axis=1)
     if weight == 0:
         assert r.min() > 0.33  # every vertex left: the ridge is behind them

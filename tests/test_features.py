@@ -77,7 +77,7 @@ def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):
 
 
 def box_edge_samples(spacing: float) -> np.ndarray:
-    from qmdf.stages.feature_detect import sample_segments
+    from qmdf.medial.features import sample_segments
 
     c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * BOX_HALF
     edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(c[i] != c[j]) == 1]
@@ -92,13 +92,12 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
     from scipy.spatial import cKDTree
 
     from qmdf.fields.analytic import BoxField
-    from qmdf.stages.contract import ContractConfig, contract
-    from qmdf.stages.cover import CoverConfig, build_covering
+    from qmdf.medial.contraction import contract
+    from qmdf.medial.covering import build_covering
 
     field, sharp = BoxField(), box_edge_samples(0.01)
-    cfg = CoverConfig(resolution=96, eps=0.01, max_faces=0)
-    voxel = 2 * cfg.extent / (cfg.resolution - 1)
-    covering, _, _ = build_covering(field, cfg, logging.getLogger("test"))
+    voxel = 2 * 0.55 / (96 - 1)
+    covering, _, _ = build_covering(field, resolution=96, eps=0.01, max_faces=0, log=logging.getLogger("test"))
     d = cKDTree(covering.vertices).query(sharp)[0]
     # measured 0.58 / 0.72 voxel; the step to a constant outside gave 0.78 / 1.02
     assert np.median(d) < 0.65 * voxel and np.percentile(d, 90) < 0.85 * voxel, (np.median(d) / voxel, np.percentile(d, 90) / voxel)
@@ -113,8 +112,8 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
 
     folded = {}
     for weight, zip_weight in ((10.0, 0.0), (0.0, 0.0), (10.0, 1000.0)):
-        cfg = ContractConfig(iterations=300, feature_weight=weight, zip_weight=zip_weight)
-        x, history, vol0, _ = contract(field, v, f, None, cfg, sharp)
+        x, history, vol0, _ = contract(field, v, f, features=sharp, iterations=300, feature_weight=weight,
+                                       zip_weight=zip_weight)
         reach[weight, zip_weight] = np.mean(cKDTree(x).query(sharp)[0] < 0.003)
         mat = MedialMesh(x, np.abs(field.evaluate(x)["sdf"]), np.zeros((0, 2), np.int64), f).with_face_edges()
         folded[weight, zip_weight] = np.mean(boundary_distance(sharp, mat) < 0.01)
@@ -129,7 +128,7 @@ def test_sharp_segments_keep_convex_edges_of_a_merged_mesh():
     reaches; repeated vertices (as OBJ files with normals load) must not hide the adjacency."""
     from trimesh.creation import extrude_triangulation
 
-    from qmdf.stages.feature_detect import sharp_mesh_segments
+    from qmdf.medial.features import sharp_mesh_segments
 
     outline = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], float)
     prism = extrude_triangulation(outline, np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]), 1.0)
@@ -151,7 +150,7 @@ def test_bisector_samples_lie_on_the_box_medial_axis_with_its_radius():
 
     from qmdf.fields.analytic import BoxField
     from qmdf.geometry.bisectors import bisector_samples
-    from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
+    from qmdf.medial.features import sample_segments, sharp_mesh_segments
 
     box = trimesh.creation.box(extents=2 * BOX_HALF)
     a, b, mean_normal = sharp_mesh_segments(box.vertices, box.faces, 30.0)
@@ -202,7 +201,7 @@ def test_layer_zip_closes_the_layers_near_features_only():
     overshoot each other under Adam's normalised steps: the pairs must hold to bring them back."""
     import trimesh
 
-    from qmdf.stages.contract import ContractConfig, contract
+    from qmdf.medial.contraction import contract
 
     slab = trimesh.creation.box(extents=(0.3, 0.008, 0.1))
     while slab.edges_unique_length.max() > 0.01:
@@ -216,8 +215,7 @@ def test_layer_zip_closes_the_layers_near_features_only():
         return np.abs(x[sel, 1]).mean() * 2  # the layers' distance
 
     for weight, near_after, far_after in ((1000.0, (0, 2e-3), (7e-3, 9e-3)), (0.0, (7e-3, 9e-3), (7e-3, 9e-3))):
-        cfg = ContractConfig(iterations=300, lattice=0, lambda_volume=0, lambda_laplacian=0, feature_weight=10,
-                             zip_weight=weight, zip_reach=0.01, zip_near=0.05)
-        x = contract(_FlatField(), v, f, None, cfg, feats)[0]
+        x = contract(_FlatField(), v, f, features=feats, iterations=300, lattice=0, lambda_volume=0,
+                     lambda_laplacian=0, feature_weight=10, zip_weight=weight, zip_reach=0.01, zip_near=0.05)[0]
         near, far = gap(x, lambda s: (s > 0.1) & (s < 0.14)), gap(x, lambda s: s < 0.05)
         assert near_after[0] <= near <= near_after[1] and far_after[0] <= far <= far_after[1], (weight, near, far)

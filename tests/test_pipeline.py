@@ -10,7 +10,8 @@ import pytest
 from qmdf.artifacts import JSON, POINTS
 from qmdf.errors import InputError, PipelineError
 from qmdf.pipeline import Pipeline
-from qmdf.registry import STAGES, load_all
+from qmdf.plugins.registry import load_all
+from qmdf.registry import STAGES
 from qmdf.rundir import new_run_name
 from qmdf.schema import param
 from qmdf.stage import Stage, register_stage
@@ -225,3 +226,14 @@ def test_a_run_whose_process_died_is_recognised_as_abandoned(compose_cfg, tmp_pa
     (alive / "manifest.json").write_text(json.dumps({"status": "running", "pid": __import__("os").getpid(),
                                                      "host": socket.gethostname(), "stages": []}))
     assert "previous" not in run(compose_cfg, tmp_path, "pipeline.stages=[sample]", run_dir=alive).manifest
+
+
+def test_the_debug_fast_overlay_is_the_tests_fast_settings():
+    """`+debug=fast` composes to exactly the settings the test suite runs with (conftest.FAST)."""
+    from omegaconf import OmegaConf
+
+    from conftest import FAST
+    from qmdf.api import compose
+
+    overlay, listed = compose(["+debug=fast"]), compose(FAST)
+    assert OmegaConf.to_container(overlay) == OmegaConf.to_container(listed)

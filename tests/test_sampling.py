@@ -8,8 +8,10 @@ from qmdf import schema
 from qmdf.geometry.normalize import Normalization
 from qmdf.geometry.pointset import PointSet
 from qmdf.geometry.shapes import get_shape
-from qmdf.registry import DEGRADATIONS, load_all
-from qmdf.stages.sample import outward_normals, sample_surface
+from qmdf.plugins.registry import load_all
+from qmdf.registry import DEGRADATIONS
+from qmdf.geometry.sampling import sample_surface
+from qmdf.stages.sample import outward_normals
 
 load_all()
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from qmdf.geometry.shapes import genus_of, get_shape
-from qmdf.registry import SHAPES, load_all
+from qmdf.plugins.registry import load_all
+from qmdf.registry import SHAPES
 
 load_all()
 EXPECTED_GENUS = {"teacup": 1, "torus": 1, "box": 0, "ellipsoid": 0, "dodecahedron": 0, "cyclide": 1}
@@ -76,7 +77,7 @@ def test_exact_sdf_against_brute_force_distance(name):
     mesh = shape.mesh(128)
     from scipy.spatial import cKDTree
 
-    from qmdf.stages.sample import sample_surface
+    from qmdf.geometry.sampling import sample_surface
 
     dense = sample_surface(mesh.vertices, mesh.faces, 400_000, np.random.default_rng(1)).points
     q = np.random.default_rng(2).uniform(-0.6, 0.6, size=(500, 3))

@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from qmdf.geometry.shapes import BOX_HALF
 from qmdf.geometry.sharp_points import fit_edges, thin
-from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
+from qmdf.medial.features import sample_segments, sharp_mesh_segments
 from tests.test_features import box_edge_distance
 
 

@@ -140,7 +140,7 @@ def test_routes_and_their_targets_on_the_torus():
 
 def test_degradations_drop_normals_and_noise_keeps_them_with_their_points():
     from qmdf.geometry.pointset import PointSet
-    from qmdf.plugins.degradations import DropNormalsConfig, NoiseConfig, drop_normals, noise
+    from qmdf.geometry.degradations import DropNormalsConfig, NoiseConfig, drop_normals, noise
 
     rng = np.random.default_rng(0)
     p = PointSet(rng.normal(size=(100, 3)), np.tile([0.0, 0.0, 1.0], (100, 1)))
@@ -193,3 +193,35 @@ def test_mat_radii_from_the_data_reach_the_surface():
     assert np.allclose(mat_radii(core, "sdf", Half()), TORUS_r / 2) and np.allclose(mat_radii(core, "mf", Half()), TORUS_r)
     with pytest.raises(ValueError, match="needs the input"):
         mat_radii(core, "data")
+
+
+def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surface():
+    """1,500 points of the torus: the screened Poisson surface of the oriented points has the torus's genus and
+    faces outward (even from inward normals), and gives every volume sample a target with the right sign and about
+    the exact distance; the points alone leave a quarter of the samples without one and are 10x less accurate."""
+    import trimesh as tm
+
+    from qmdf.geometry.proxy_surface import poisson_surface
+
+    torus = get_shape("torus").mesh(128)
+    pts, nrm = _samples(torus, 1500)
+    for normals in (nrm, -nrm):
+        v, f = poisson_surface(pts, normals)
+        mesh = tm.Trimesh(v, f, process=False)
+        assert mesh.is_watertight and mesh.euler_number == 0 and mesh.volume > 0
+        assert np.median(np.abs(torus_sdf(v))) < 2e-3
+    proxy = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000)
+    points = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000,
+                               proxy="points")
+    assert proxy.stats["proxy"] == "poisson" and points.stats["proxy"] == "points"
+    assert proxy.ray_origins is not None and len(proxy.ray_origins) == len(proxy.radii) > len(pts)
+    known = np.isfinite(proxy.sdf)
+    assert known.all()
+    exact = torus_sdf(proxy.volume)
+    err = np.abs(proxy.sdf - exact)
+    assert np.mean(np.sign(proxy.sdf) == np.sign(exact)) > 0.995
+    assert np.median(err) < 1.5e-3 and np.percentile(err, 95) < 5e-3  # measured 6.6e-4 and 1.8e-3
+    known = np.isfinite(points.sdf)
+    assert known.mean() < 0.8 and np.percentile(np.abs(points.sdf[known] - torus_sdf(points.volume[known])), 95) > 8e-3
+    # the rays from the proxy reach the tube's axis: the radius behind its points is the tube's
+    assert abs(np.median(proxy.radii) - TORUS_r) < 0.015

@@ -32,7 +32,7 @@ def run_shape(shape: str, out: Path, overrides: list[str], tets: bool = False, l
 
     from qmdf.geometry.ma_format import read_ma
     from qmdf.geometry.shapes import get_shape
-    from qmdf.registry import load_all
+    from qmdf.plugins.registry import load_all
 
     load_all()
     run_dir = out / shape

@@ -40,7 +40,7 @@ def boundary_distance(sharp: np.ndarray, mat, fold_deg: float = 150.0, spacing: 
     from scipy.spatial import cKDTree
 
     from qmdf.geometry.metrics import fold_edges
-    from qmdf.stages.feature_detect import sample_segments
+    from qmdf.medial.features import sample_segments
 
     e = fold_edges(mat.vertices, mat.faces, fold_deg)
     if len(e) == 0:
@@ -60,7 +60,7 @@ def score(run_dir: Path, manifest: dict, reference: Path | None = None, after: P
     from qmdf.geometry.ma_format import read_ma
     from qmdf.geometry.metrics import point_to_mesh_distance
     from qmdf.geometry.normalize import Normalization
-    from qmdf.stages.feature_detect import sample_segments, sharp_mesh_segments
+    from qmdf.medial.features import sample_segments, sharp_mesh_segments
 
     dirs = {}
     for s in manifest["stages"]:

@@ -28,8 +28,9 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
     from qmdf.geometry.ma_format import write_ma
     from qmdf.schema import build, check_section
-    from qmdf.stages.contract import ContractConfig, contract, surface_mesh
-    from qmdf.stages.export import membrane_to_mat
+    from qmdf.medial.contraction import contract, surface_mesh
+    from qmdf.medial.radii import membrane_to_mat
+    from qmdf.stages.contract import ContractConfig, contraction_params
 
     bad = [o for o in overrides if not o.startswith("contract.") or "=" not in o]
     if bad:
@@ -58,7 +59,8 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     covering = MESH.load(run_dir / sources["covering"])
     features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
     faces = np.asarray(covering.faces)
-    x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, cfg, features)
+    x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, features=features,
+                                   **contraction_params(cfg))
     mat = membrane_to_mat(surface_mesh(x, faces), field)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)

@@ -23,16 +23,20 @@ class StepSampler:
         self.mf = torch.as_tensor(sup.mf, dtype=f32)
         self.radii = None if sup.radii is None else torch.as_tensor(sup.radii, dtype=f32)
         self.ray = None if sup.ray is None else torch.as_tensor(sup.ray, dtype=torch.int64)
+        # where the medial rays start and their direction: the points and their normals, or samples of a proxy
+        # surface and its normals (``Supervision.ray_origins``)
+        self.origins = self.surface if sup.ray_origins is None else torch.as_tensor(sup.ray_origins, dtype=f32)
+        self.ray_normals = self.normals if sup.ray_normals is None else torch.as_tensor(sup.ray_normals, dtype=f32)
         self.bs, self.bv, self.seed = surface_batch, volume_batch, seed
 
     @property
     def has_rays(self) -> bool:
-        if self.radii is None or self.normals is None or self.ray is None:
+        if self.radii is None or self.ray_normals is None or self.ray is None:
             return False
         return bool((self.ray >= 0).any())
 
     def to(self, device) -> "StepSampler":
-        for name in ("surface", "normals", "volume", "sdf", "mf", "radii", "ray"):
+        for name in ("surface", "normals", "volume", "sdf", "mf", "radii", "ray", "origins", "ray_normals"):
             value = getattr(self, name)
             if value is not None:
                 setattr(self, name, value.to(device))
@@ -56,10 +60,10 @@ class StepSampler:
         """fn(points (M * samples, 3), depths (M, samples)) -> (M,), over the depths 0 .. reach * r of each surface
         point's medial ray, in chunks."""
         t = torch.linspace(0.0, reach, samples, device=self.surface.device)
-        out = torch.empty(len(self.surface), device=self.surface.device)
+        out = torch.empty(len(self.origins), device=self.surface.device)
         per = max(1, chunk // samples)
-        for s in range(0, len(self.surface), per):
-            p, n, r = self.surface[s:s + per], self.normals[s:s + per], self.radii[s:s + per]
+        for s in range(0, len(self.origins), per):
+            p, n, r = self.origins[s:s + per], self.ray_normals[s:s + per], self.radii[s:s + per]
             depth = r[:, None] * t[None, :]
             x = p[:, None, :] - depth[..., None] * n[:, None, :]
             out[s:s + per] = fn(x.reshape(-1, 3), depth)
@@ -85,9 +89,9 @@ class StepSampler:
         the field's own ridge along the ray: past a small ball's axis a ray can enter a thicker part where |sdf|
         keeps growing, more slowly, and a search for where it stops tracking the depth drifts with the field's
         small metric errors along long rays: both were tried on the bunny.)"""
-        out = torch.empty(len(self.surface), device=self.surface.device)
-        for s in range(0, len(self.surface), chunk):
-            centre = self.surface[s:s + chunk] - self.radii[s:s + chunk, None] * self.normals[s:s + chunk]
+        out = torch.empty(len(self.origins), device=self.surface.device)
+        for s in range(0, len(self.origins), chunk):
+            centre = self.origins[s:s + chunk] - self.radii[s:s + chunk, None] * self.ray_normals[s:s + chunk]
             out[s:s + chunk] = (-sdf_fn(centre)).clamp_min(0.0)
         return out
 

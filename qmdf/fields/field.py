@@ -75,9 +75,8 @@ class Field:
         from qmdf.errors import QmdfError
         from qmdf.fields.backbones import BACKBONES
         from qmdf.fields.network import MedialFieldNet
-        from qmdf.registry import load_all
 
-        load_all()
+        BACKBONES.load_entry_points()  # a plugin's backbone may have made the field
         data = torch.load(path, map_location="cpu", weights_only=True)
         if data.get("format") == ANALYTIC_FORMAT:
             from qmdf.fields.analytic import ANALYTIC

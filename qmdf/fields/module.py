@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any, Callable
 
 import lightning as L
 import torch
@@ -12,39 +13,49 @@ from qmdf.fields.losses import LOSSES, Terms
 from qmdf.fields.network import MedialFieldNet
 
 
+def build_net(backbone: str, params: dict) -> MedialFieldNet:
+    """The joint network with the registered ``backbone`` and its settings."""
+    from qmdf.fields.backbones import BACKBONES
+
+    return MedialFieldNet(backbone, schema.build(BACKBONES.get(backbone).config, params))
+
+
+def build_terms(losses: dict, medial_field: bool = True) -> list[tuple[str, Callable, Any]]:
+    """(name, function, typed config) of each registered loss in ``losses`` with a positive weight; the medial
+    field's terms only when it is trained."""
+    terms = []
+    for name, params in losses.items():
+        e = LOSSES.get(name)
+        if getattr(e.obj, "medial", False) and not medial_field:
+            continue
+        cfg = schema.build(e.config, params)
+        if cfg.weight > 0:
+            terms.append((name, e.obj, cfg))
+    return terms
+
+
 class Diverged(RuntimeError):
     """The loss became NaN or infinite."""
 
 
 class FieldModule(L.LightningModule):
     """Each step draws its batch from ``sampler`` at the module's own global step (the data loader only counts),
-    so an interrupted and resumed training is the same training."""
+    so an interrupted and resumed training is the same training. The network and the loss terms are built
+    outside (``build_net``, ``build_terms``); ``anchors`` are named point sets some terms read beyond the batch
+    (feature_retrain's feature points, medial points and radii), kept as buffers so a checkpoint holds them."""
 
-    def __init__(self, backbone: str, backbone_params: dict, losses: dict, medial_field: bool, lr: float,
-                 lr_final: float, steps: int, sampler: StepSampler, ridge_every: int = 0, ridge_start: float = 0.3,
-                 feature_points=None, sharp_weights: tuple[float, float] = (0.0, 0.0),
-                 medial_points=None, medial_radii=None, medial_weight: float = 0.0, medial_batch: int = 4096):
+    def __init__(self, net: MedialFieldNet, terms: list[tuple[str, Callable, Any]], sampler: StepSampler, *,
+                 steps: int, lr: float = 1e-3, lr_final: float = 1e-4, medial_field: bool = True, ridge_every: int = 0,
+                 ridge_start: float = 0.3, anchors: dict | None = None):
         super().__init__()
-        # feature-retrain (paper Sec. 4.3): L_sharp1 = mean |sdf(p_i)|, L_sharp2 = mean |mf(p_i)| at feature points
-        # (|mf|: our heads are not sign-constrained, and a plain mean drove mf to -0.22 there, measured on the box)
-        self.register_buffer("feature_points", None if feature_points is None else torch.as_tensor(feature_points, dtype=torch.float32))
-        self.sharp_weights = sharp_weights
-        # known medial points with their radii (bisectors of sharp edges): sdf = -r and mf = r there
-        self.register_buffer("medial_points", None if medial_points is None else torch.as_tensor(medial_points, dtype=torch.float32))
-        self.register_buffer("medial_radii", None if medial_radii is None else torch.as_tensor(medial_radii, dtype=torch.float32))
-        self.medial_weight, self.medial_batch = medial_weight, medial_batch
-        entry = __import__("qmdf.fields.backbones", fromlist=["BACKBONES"]).BACKBONES.get(backbone)
-        self.net = MedialFieldNet(backbone, schema.build(entry.config, backbone_params))
+        self.net = net
         self.medial_field = medial_field
-        self.terms = []
-        for name, params in losses.items():
-            e = LOSSES.get(name)
-            if getattr(e.obj, "medial", False) and not medial_field:
-                continue
-            cfg = schema.build(e.config, params)
-            if cfg.weight > 0:
-                self.terms.append((name, e.obj, cfg))
+        self.terms = terms
         self.needs = {need for _, fn, _ in self.terms for need in getattr(fn, "needs", ())}
+        self.anchor_names = []
+        for name, value in (anchors or {}).items():
+            self.register_buffer(f"anchor_{name}", None if value is None else torch.as_tensor(value, dtype=torch.float32))
+            self.anchor_names.append(name)
         self.lr, self.lr_final, self.steps = lr, lr_final, steps
         self.sampler = sampler
         # mf targets on the medial rays: the rays' radii, then (every ridge_every steps from ridge_start of the
@@ -78,21 +89,11 @@ class FieldModule(L.LightningModule):
             grad_mf_v=grad_mf[b:] if grad_mf is not None else None,
             sdf_fn=self.net.sdf_only, progress=self.global_step / max(1, self.steps - 1),
             normals_s=data["normals"], sdf_target_v=data["sdf_target"], mf_target_v=data["mf_target"],
+            net=self.net, anchors={name: getattr(self, f"anchor_{name}") for name in self.anchor_names},
+            generator=lambda salt: self.sampler.generator(step, salt),
         )
         values = {name: fn(t, cfg) for name, fn, cfg in self.terms}
         total = sum(cfg.weight * values[name] for name, _, cfg in self.terms)
-        if self.feature_points is not None and len(self.feature_points):
-            sdf_f, mf_f = self.net(self.feature_points)
-            values["sharp_sdf"], values["sharp_mf"] = sdf_f.abs().mean(), mf_f.abs().mean()
-            total = total + self.sharp_weights[0] * values["sharp_sdf"] + self.sharp_weights[1] * values["sharp_mf"]
-        if self.medial_points is not None and len(self.medial_points) and self.medial_weight > 0:
-            pick = torch.randint(len(self.medial_points), (min(self.medial_batch, len(self.medial_points)),),
-                                 generator=self.sampler.generator(int(self.global_step), salt=1))
-            pick = pick.to(self.medial_points.device)
-            sdf_m, mf_m = self.net(self.medial_points[pick])
-            r = self.medial_radii[pick]
-            values["sharp_medial"] = (sdf_m + r).abs().mean() + (mf_m - r).abs().mean()
-            total = total + self.medial_weight * values["sharp_medial"]
         if not torch.isfinite(total):
             raise Diverged(f"the loss became {total.item()} at step {self.global_step}")
         logs = {f"loss/{k}": v.detach() for k, v in values.items()}

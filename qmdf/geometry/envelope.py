@@ -269,7 +269,7 @@ def sample_union_surface(union: EnvelopeUnion, count: int, rng: np.random.Genera
                          mesh=None) -> np.ndarray:
     """``count`` points exactly on the union's boundary, nearly uniform by area: uniform samples of the
     marching-cubes surface, each snapped onto the primitive that attains the union there."""
-    from qmdf.stages.sample import sample_surface
+    from qmdf.geometry.sampling import sample_surface
 
     mesh = mesh if mesh is not None else reconstruct_mesh(union, resolution)
     if mesh is None:

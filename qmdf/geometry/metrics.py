@@ -52,7 +52,7 @@ def reconstruction_distances(union, gt_vertices: np.ndarray, gt_faces: np.ndarra
     buried in another primitive: those use their distance to the meshed union (counted in the output).
     Returns (metrics, reconstruction mesh, (R samples, their distances), (G samples, their distances))."""
     from qmdf.geometry.envelope import reconstruct_mesh, sample_union_surface
-    from qmdf.stages.sample import sample_surface
+    from qmdf.geometry.sampling import sample_surface
 
     mesh = recon_mesh if recon_mesh is not None else reconstruct_mesh(union, resolution)
     if mesh is None:

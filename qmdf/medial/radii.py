@@ -38,3 +38,12 @@ def mat_radii(vertices: np.ndarray, source: str, field=None, mesh: tuple[np.ndar
     if source == "mf":
         return np.maximum(out["mf"], 0.0).astype(np.float64)
     raise ValueError(f"unknown radius source {source!r}; one of {', '.join(RADIUS_SOURCES)}")
+
+
+def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None):
+    """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius from ``radius``."""
+    from qmdf.geometry.ma_format import MedialMesh
+
+    v = np.asarray(membrane.vertices, np.float64)
+    radii = mat_radii(v, radius, field, mesh, points)
+    return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()

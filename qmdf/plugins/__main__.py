@@ -4,7 +4,8 @@ from __future__ import annotations
 import sys
 
 from qmdf.config import BUILTIN_STAGES
-from qmdf.registry import STAGES, all_registries, load_all
+from qmdf.plugins.registry import all_registries, load_all
+from qmdf.registry import STAGES
 
 
 def listing() -> str:

@@ -1,26 +1,12 @@
 """``contract``: collapse the covering's volume onto the medial axis (paper Sec. 4.2, Fig. 8).
 
-Energy over vertex positions, connectivity kept:
-    mean over surface vertices of q(v)  +  lambda_volume * max(Vol, 0) / A0  +  lambda_laplacian * mean_i w_i |L v_i|^2
-with Vol the enclosed volume (of the tets, or of the closed surface), A0 the initial surface area (so the
-volume term is a mean thickness, comparable to q), L the uniform umbrella Laplacian and w_i inversely
-proportional to the area around v_i (DCUDF). After ``feature_detect`` (the sharp-feature pass) one more term,
-not in the paper, keeps the covering's tips on the feature points: each feature point pulls its nearest
-vertex, ``feature_weight`` * sum_j |v_k(j) - p_j| / N; without it the tips slid back along the retrained
-field's shallow valley (measured on the box: sharp-edge samples within 0.01 of the covering 0.97, of the
-membrane 0.32). Near the feature points, ``zip_weight`` also pulls each vertex toward the facing
-layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Not in the
-paper either: the vertices read q + ``outside_weight`` * max(sdf, 0) (``InsideQ``), so q does not fall
-outside the shape and the vertices of thin parts stay in. Steps: a
-per-vertex ("vector") Adam with cosine decay. q is read from a lazily evaluated fine lattice (``contract.lattice``), so 3k iterations cost seconds, not minutes.
-"""
+The contraction itself, its energy and its terms: ``qmdf.medial.contraction``."""
 from __future__ import annotations
 
-import math
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from qmdf.artifacts import FIELD, JSON, MESH, POINTS, TETS
 from qmdf.errors import QmdfError
@@ -54,280 +40,9 @@ class ContractConfig:
     log_every: int = param(25, ge=1)
 
 
-class InsideQ:
-    """``field`` with q replaced by q + weight * max(sdf, 0), the contraction's objective. Inside the shape it
-    is q. Outside, q = mf - |sdf| falls as the distance grows, and vertices of thin parts walked out along it
-    (abc_00000329, a 0.02-thick plate: 1386 of 15077 membrane vertices ended more than 0.02 outside the learned
-    surface, the largest at 0.097, and their spheres set the reconstruction's HD); with weight 2 it continues
-    as mf + sdf, which rises outward wherever mf does not fall faster than the distance grows."""
-
-    def __init__(self, field, weight: float):
-        self.field, self.weight = field, float(weight)
-        self.normalization = getattr(field, "normalization", None)
-
-    def evaluate(self, points: np.ndarray, grad: bool = False) -> dict[str, np.ndarray]:
-        out = self.field.evaluate(points, grad=grad)
-        outside = out["sdf"] > 0
-        out["q"] = out["q"] + self.weight * np.where(outside, out["sdf"], 0).astype(out["q"].dtype)
-        if grad:
-            out["q_grad"] = out["q_grad"] + self.weight * outside[:, None] * out["sdf_grad"]
-        return out
-
-
-def umbrella(n_vertices: int, faces: np.ndarray):
-    """Sparse uniform Laplacian L = I - D^-1 A of a triangle mesh (scipy CSR)."""
-    from scipy import sparse
-
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    rows = np.concatenate([e[:, 0], e[:, 1]])
-    cols = np.concatenate([e[:, 1], e[:, 0]])
-    deg = np.bincount(rows, minlength=n_vertices).astype(np.float64)
-    A = sparse.csr_matrix((1.0 / np.maximum(deg[rows], 1), (rows, cols)), shape=(n_vertices, n_vertices))
-    return (sparse.diags((deg > 0).astype(np.float64)) - A).tocsr()
-
-
-def area_weights(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """w_i = max_j sqrt(A_j) / sqrt(A_i), A_i the area of the faces around vertex i (DCUDF)."""
-    tri = v[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    a = np.bincount(faces.ravel(), np.repeat(area, 3), minlength=len(v))
-    a = np.maximum(a, 1e-20)
-    return np.sqrt(a.max()) / np.sqrt(a)
-
-
-class EnclosedVolume:
-    """Enclosed volume (of the tets, else of the closed surface by the divergence theorem) and its gradient,
-    closed-form: per triangle (v1 x v2, v2 x v0, v0 x v1) / 6, per tet likewise; one sparse product sums the
-    corner contributions into the vertices."""
-
-    def __init__(self, n_vertices: int, faces: np.ndarray | None, tets: np.ndarray | None):
-        from scipy import sparse
-
-        self.cells = np.asarray(tets if tets is not None else faces)
-        self.sum_corners = sparse.csr_matrix((np.ones(self.cells.size), (self.cells.T.ravel(), np.arange(self.cells.size))),
-                                             shape=(n_vertices, self.cells.size))
-
-    def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        c = self.cells
-        if c.shape[1] == 3:
-            grad = np.zeros_like(x)
-            return _surface_volume(x, c, grad), grad
-        if c.shape[1] == 4:
-            a, b, cc, d = (x[c[:, k]] for k in range(4))
-            ab, ac, ad = b - a, cc - a, d - a
-            gb, gc, gd = np.cross(ac, ad) / 6, np.cross(ad, ab) / 6, np.cross(ab, ac) / 6
-            vol = float((gd * ad).sum())
-            return vol, self.sum_corners @ np.vstack([-(gb + gc + gd), gb, gc, gd])
-        v0, v1, v2 = (x[c[:, k]] for k in range(3))
-        g0, g1, g2 = np.cross(v1, v2) / 6, np.cross(v2, v0) / 6, np.cross(v0, v1) / 6
-        return float((v0 * g0).sum()), self.sum_corners @ np.vstack([g0, g1, g2])
-
-
-@njit(cache=True)
-def _surface_volume(x, faces, grad):
-    """The divergence-theorem volume of a closed surface; its gradient accumulated into grad."""
-    vol = 0.0
-    for f in range(faces.shape[0]):
-        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
-        ax, ay, az = x[i, 0], x[i, 1], x[i, 2]
-        bx, by, bz = x[j, 0], x[j, 1], x[j, 2]
-        cx, cy, cz = x[k, 0], x[k, 1], x[k, 2]
-        # (b x c, c x a, a x b) / 6
-        gx, gy, gz = (by * cz - bz * cy) / 6, (bz * cx - bx * cz) / 6, (bx * cy - by * cx) / 6
-        vol += ax * gx + ay * gy + az * gz
-        grad[i, 0] += gx
-        grad[i, 1] += gy
-        grad[i, 2] += gz
-        grad[j, 0] += (cy * az - cz * ay) / 6
-        grad[j, 1] += (cz * ax - cx * az) / 6
-        grad[j, 2] += (cx * ay - cy * ax) / 6
-        grad[k, 0] += (ay * bz - az * by) / 6
-        grad[k, 1] += (az * bx - ax * bz) / 6
-        grad[k, 2] += (ax * by - ay * bx) / 6
-    return vol
-
-
-@njit(cache=True)
-def _vector_adam(x, g, m, s, lr, t, b1=0.9, b2=0.999):
-    """Adam with one second moment per vertex (isotropic steps, as DCUDF), in place."""
-    c1, c2 = 1 - b1 ** t, 1 - b2 ** t
-    for n in range(x.shape[0]):
-        sq = 0.0
-        for k in range(3):
-            m[n, k] = b1 * m[n, k] + (1 - b1) * g[n, k]
-            sq += g[n, k] * g[n, k]
-        s[n] = b2 * s[n] + (1 - b2) * sq
-        denom = math.sqrt(s[n] / c2) + 1e-16
-        for k in range(3):
-            x[n, k] -= lr * (m[n, k] / c1) / denom
-
-
-class FeaturePull:
-    """sum_j |v_k(j) - p_j| over the feature points p_j within ``reach`` of their nearest vertex v_k(j), with
-    the assignment refreshed every ``refresh`` iterations (a KD-tree query: milliseconds)."""
-
-    def __init__(self, features: np.ndarray, candidates: np.ndarray, reach: float, refresh: int = 10):
-        self.features = np.asarray(features, np.float64)
-        self.candidates, self.reach, self.refresh = candidates, reach, refresh
-        self.vertex = np.zeros(0, np.int64)
-        self.active = np.zeros(len(self.features), bool)
-
-    def assign(self, x: np.ndarray) -> None:
-        from scipy.spatial import cKDTree
-
-        d, i = cKDTree(x[self.candidates]).query(self.features)
-        self.active = d < self.reach
-        self.vertex = self.candidates[i[self.active]]
-
-    def __call__(self, x: np.ndarray, it: int, g: np.ndarray, weight: float) -> float:
-        """Adds weight * the gradient into g; returns the mean distance of the pulling feature points."""
-        if it % self.refresh == 0:
-            self.assign(x)
-        if not len(self.vertex):
-            return 0.0
-        diff = x[self.vertex] - self.features[self.active]
-        dist = np.linalg.norm(diff, axis=1)
-        np.add.at(g, self.vertex, weight * diff / np.maximum(dist, 1e-12)[:, None])
-        return float(dist.mean())
-
-
-class LayerZip:
-    """Near the feature points, pulls each covering vertex toward the nearest vertex of the opposite layer
-    within ``reach`` (normals facing each other, turning by more than 120 degrees; the partner behind the
-    vertex): sum_v |v - u_v|^2 / 2, the pairs refreshed every ``refresh`` iterations. The enclosed volume is
-    one global number: once it reaches zero (layers crossing somewhere) it pushes nowhere, and a sheet's tip at
-    a sharp edge, where q is flat (mf and |sdf| both near 0), stays open in a V (measured on the box: turning
-    angle 106 degrees at the misses, not the fold's 180). Only near features: elsewhere the nearest vertex is
-    not straight across, and the sideways pull retracted smooth sheets' rims (the exact ellipsoid's HD went
-    from 8e-4 to 3.5e-3)."""
-
-    def __init__(self, faces: np.ndarray, candidates: np.ndarray, features: np.ndarray, near: float, reach: float,
-                 refresh: int = 10):
-        from scipy.spatial import cKDTree
-
-        self.faces, self.candidates, self.reach, self.refresh, self.near = faces, candidates, reach, refresh, near
-        self.features = cKDTree(features)
-        self.partner_of = np.full(int(faces.max()) + 1 if len(faces) else 0, -1)
-        self.vertex = self.partner = np.zeros(0, np.int64)
-
-    def assign(self, x: np.ndarray) -> None:
-        """New pairs for the unpaired vertices; a pair holds while the two stay within reach, also once they
-        have crossed (with Adam's normalised steps they overshoot, and the pull must bring them back)."""
-        from scipy.spatial import cKDTree
-
-        held = self.partner_of >= 0
-        held[held] = np.linalg.norm(x[held] - x[self.partner_of[held]], axis=1) < self.reach
-        self.partner_of[~held] = -1
-        tri = x[self.faces]
-        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # area-weighted face normals
-        n = np.zeros_like(x)
-        for k in range(3):
-            np.add.at(n, self.faces[:, k], fn)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        c = self.candidates
-        d, j = cKDTree(x[c]).query(x[c], k=16, distance_upper_bound=self.reach)
-        j = np.where(np.isfinite(d), j, 0)
-        u = c[j]  # (M, 16)
-        facing = np.einsum("mi,mki->mk", n[c], n[u]) < -0.5
-        behind = np.einsum("mi,mki->mk", n[c], x[u] - x[c][:, None]) < 0
-        ok = np.isfinite(d) & facing & behind
-        new = ok.any(1) & (self.partner_of[c] < 0) & (self.features.query(x[c])[0] < self.near)
-        first = np.argmax(ok, axis=1)  # the nearest such partner (queries come sorted by distance)
-        self.partner_of[c[new]] = u[new, first[new]]
-        self.vertex = np.flatnonzero(self.partner_of >= 0)
-        self.partner = self.partner_of[self.vertex]
-
-    def __call__(self, x: np.ndarray, it: int, g: np.ndarray, weight: float) -> int:
-        """Adds weight * the gradient into g; returns how many vertices are pulled."""
-        if it % self.refresh == 0:
-            self.assign(x)
-        np.add.at(g, self.vertex, weight * (x[self.vertex] - x[self.partner]))
-        return len(self.vertex)
-
-
-def volume_and_gradient(x: np.ndarray, faces: np.ndarray | None, tets: np.ndarray | None) -> tuple[float, np.ndarray]:
-    return EnclosedVolume(len(x), faces, tets)(x)
-
-
-def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | None, cfg: ContractConfig,
-             features: np.ndarray | None = None):
-    """The contracted vertices, the per-iteration log of the energy terms and the volume, the initial volume,
-    and how many field evaluations it took. ``features``: feature points whose nearest vertices are pulled.
-    Gradients are closed-form (no autograd): the volume's per triangle (or tet), the Laplacian energy's
-    2/N L^T W L x."""
-
-    from qmdf.fields.lattice import LatticeQ
-    from qmdf.geometry.tets import signed_volumes
-
-    x = np.array(vertices, np.float64)
-    if cfg.outside_weight > 0:
-        field = InsideQ(field, cfg.outside_weight)
-    surf = np.unique(faces)
-    if tets is not None and signed_volumes(vertices, tets).sum() < 0:
-        tets = tets[:, [0, 2, 1, 3]]
-    L = umbrella(len(x), faces)
-    LT = L.T.tocsr()
-    tri = x[faces]
-    area0 = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
-    w = area_weights(x, faces)
-    margin = 0.05
-    lattice = LatticeQ(field, cfg.lattice, x.min(0) - margin, x.max(0) + margin) if cfg.lattice > 0 else None
-    enclosed = EnclosedVolume(len(x), faces, tets)
-    exact_evaluations = 0
-    m = np.zeros_like(x)
-    s = np.zeros(len(x))
-    history = []
-    has_features = features is not None and len(features) > 0
-    pull = FeaturePull(features, surf, cfg.feature_reach) if has_features and cfg.feature_weight > 0 else None
-    feature_distance = None
-    zipper = LayerZip(faces, surf, features, cfg.zip_near, cfg.zip_reach) if has_features and cfg.zip_weight > 0 else None
-    vol0 = enclosed(x)[0]
-    for it in range(cfg.iterations):
-        if lattice is not None:
-            q, qg = lattice(x[surf])
-        else:
-            out = field.evaluate(x[surf], grad=True)
-            q, qg = out["q"], out["q_grad"]
-            exact_evaluations += len(surf)
-        g = np.zeros_like(x)
-        g[surf] = qg / len(surf)
-        vol, vol_grad = enclosed(x)
-        # max(Vol, 0): the signed volume has no minimum at zero; once the layers meet it would keep pushing
-        # them through each other (measured: the box's covering diverged to -2e3 without the clamp)
-        if vol > 0:
-            g += cfg.lambda_volume / area0 * vol_grad
-        lap = L @ x
-        e_lap = float((w[:, None] * lap * lap).sum(1).mean())
-        g += cfg.lambda_laplacian * (2.0 / len(x)) * (LT @ (w[:, None] * lap))
-        if pull is not None:
-            feature_distance = pull(x, it, g, cfg.feature_weight / len(surf))
-        zipped = zipper(x, it, g, cfg.zip_weight / len(surf)) if zipper is not None else None
-        lr = cfg.lr_final + (cfg.lr - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * it / cfg.iterations))
-        _vector_adam(x, g, m, s, lr, it + 1)
-        if it % cfg.log_every == 0 or it == cfg.iterations - 1:
-            geom = cfg.lambda_volume * max(vol, 0.0) / area0 + cfg.lambda_laplacian * e_lap
-            rec = {"iteration": it, "q_mean": float(q.mean()), "volume": vol, "laplacian": e_lap,
-                   "energy": float(q.mean()) + geom, "lr": lr}
-            if pull is not None:
-                rec["feature_distance"], rec["pulling_features"] = feature_distance, int(pull.active.sum())
-            if zipper is not None:
-                rec["zipped_vertices"] = zipped
-            history.append(rec)
-            if not np.isfinite(rec["energy"]):
-                raise QmdfError(f"contraction diverged at iteration {it}; lower contract.lr")
-    evaluations = lattice.evaluated if lattice is not None else exact_evaluations
-    return x, history, vol0, evaluations
-
-
-def surface_mesh(x: np.ndarray, faces: np.ndarray):
-    """The contracted surface as a mesh of its own vertices (a tet covering's inner vertices dropped)."""
-    import trimesh
-
-    used = np.unique(faces)
-    remap = np.full(len(x), -1)
-    remap[used] = np.arange(len(used))
-    return trimesh.Trimesh(x[used], remap[faces], process=False)
+def contraction_params(cfg: ContractConfig) -> dict:
+    """The config's keywords of ``qmdf.medial.contraction.contract`` (all but the volume mode)."""
+    return {k: v for k, v in dataclasses.asdict(cfg).items() if k != "volume"}
 
 
 @register_stage("contract")
@@ -342,6 +57,7 @@ class Contract(Stage):
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.tets import boundary_faces
+        from qmdf.medial.contraction import contract, surface_mesh
 
         cfg: ContractConfig = ctx.cfg
         field = ctx.load("field")
@@ -355,7 +71,7 @@ class Contract(Stage):
             mesh = ctx.load("covering")
             v, t, faces = np.asarray(mesh.vertices), None, np.asarray(mesh.faces)
         features = ctx.load("feature_points").points if ctx.has("feature_points") else None
-        x, history, vol0, evaluations = contract(field, v, faces, t, cfg, features)
+        x, history, vol0, evaluations = contract(field, v, faces, t, features=features, **contraction_params(cfg))
         ctx.save("membrane", surface_mesh(x, faces))
         if t is not None:
             ctx.save("contracted_tets", (x, t))

@@ -6,10 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_kind
-from qmdf.medial.radii import RADIUS_SOURCES, mat_radii
+from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 from qmdf.stages.inputs import input_data
@@ -21,15 +20,6 @@ class ExportConfig:
     picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
     radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius: data (distance to the input mesh or "
                         "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data")
-
-
-def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None):
-    """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius from ``radius``."""
-    from qmdf.geometry.ma_format import MedialMesh
-
-    v = np.asarray(membrane.vertices, np.float64)
-    radii = mat_radii(v, radius, field, mesh, points)
-    return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
 
 
 @register_stage("export")

@@ -47,7 +47,7 @@ class FeatureRetrain(Stage):
         import dataclasses
 
         from qmdf.fields.field import Field
-        from qmdf.fields.module import FieldModule
+        from qmdf.fields.module import FieldModule, build_net, build_terms
         from qmdf.geometry.bisectors import bisector_samples
         from qmdf.fields.data import StepSampler
         from qmdf.stages.train import axis_q_stats, fit, route_losses, supervise
@@ -68,11 +68,15 @@ class FeatureRetrain(Stage):
         train_cfg = dataclasses.replace(ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False)
         sup = supervise(ctx, train_cfg)
         sampler = StepSampler(sup, train_cfg.surface_batch, train_cfg.volume_batch, ctx.seed)
-        module = FieldModule(field.meta["backbone"], field.meta["backbone_params"], route_losses(train_cfg, sup.route),
-                             train_cfg.medial_field, cfg.lr, cfg.lr_final, cfg.steps, sampler, train_cfg.ridge_every,
-                             train_cfg.ridge_start, feature_points=feats,
-                             sharp_weights=(cfg.weight_sdf, cfg.weight_mf), medial_points=medial, medial_radii=radii,
-                             medial_weight=cfg.bisector_weight, medial_batch=cfg.bisector_batch)
+        # the paper's L_sharp1 / L_sharp2 and the bisectors' medial samples, beside the route's own terms
+        losses = {**route_losses(train_cfg, sup.route), "sharp_sdf": {"weight": cfg.weight_sdf},
+                  "sharp_mf": {"weight": cfg.weight_mf},
+                  "sharp_medial": {"weight": cfg.bisector_weight, "batch": cfg.bisector_batch}}
+        module = FieldModule(build_net(field.meta["backbone"], field.meta["backbone_params"]),
+                             build_terms(losses, train_cfg.medial_field), sampler, steps=cfg.steps, lr=cfg.lr,
+                             lr_final=cfg.lr_final, medial_field=train_cfg.medial_field,
+                             ridge_every=train_cfg.ridge_every, ridge_start=train_cfg.ridge_start,
+                             anchors={"feature_points": feats, "medial_points": medial, "medial_radii": radii})
         module.net.load_state_dict(field.net.state_dict())
         device = fit(ctx, train_cfg, module, cfg.steps)
         axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and train_cfg.medial_field else None

@@ -13,6 +13,7 @@ from qmdf.errors import InputError
 from qmdf.geometry.io import InputGeometry, Limits, load_geometry
 from qmdf.geometry.normalize import Normalization
 from qmdf.geometry.pointset import PointSet
+from qmdf.geometry.sampling import sample_surface
 from qmdf.geometry.shapes import get_shape
 from qmdf.registry import DEGRADATIONS
 from qmdf.schema import param
@@ -48,21 +49,6 @@ def read_input(ctx: StageContext) -> InputGeometry:
         return InputGeometry(f"procedural:{inp.shape}", PointSet(mesh.vertices), np.asarray(mesh.faces))
     limits = Limits(min_points=inp.min_points, max_abs_coordinate=inp.max_abs_coordinate)
     return load_geometry(resolve_input_path(inp.path, ctx.settings.base_dir), inp.kind, limits)
-
-
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.random.Generator) -> PointSet:
-    """Uniform (area-weighted) samples on a triangle mesh, with the face normals at the samples."""
-    tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
-    face = rng.choice(len(faces), size=count, p=area2 / area2.sum())
-    r1, r2 = rng.random(count), rng.random(count)
-    flip = r1 + r2 > 1
-    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
-    t = tri[face]
-    pts = t[:, 0] + r1[:, None] * (t[:, 1] - t[:, 0]) + r2[:, None] * (t[:, 2] - t[:, 0])
-    normals = cross[face] / np.maximum(area2[face], 1e-300)[:, None]
-    return PointSet(pts, normals)
 
 
 def outward_normals(samples: PointSet, vertices: np.ndarray, faces: np.ndarray, log) -> PointSet:

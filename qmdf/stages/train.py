@@ -2,9 +2,6 @@
 oriented or raw points: ``qmdf.fields.supervision``), or by the raw points alone as in the paper."""
 from __future__ import annotations
 
-import contextlib
-import logging
-import signal
 import sys
 
 import numpy as np
@@ -13,7 +10,6 @@ from typing import Any
 
 from qmdf import schema
 from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS
-from qmdf.errors import Interrupted, QmdfError
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -46,6 +42,12 @@ class TrainConfig:
     supervision: str = param("auto", choices=("auto", "mesh", "oriented_points", "raw_points", "paper"),
                              doc="what the field learns from: auto picks mesh (an undegraded mesh input), oriented_points "
                                  "(points with normals) or raw_points; paper: the raw points alone, no normals or distances")
+    point_surface: str = param("poisson", choices=("poisson", "points"),
+                               doc="on a point cloud (oriented_points, raw_points): poisson: a screened Poisson surface of the "
+                                   "oriented points gives the sign, the distances and the medial rays (the sparse bunny's "
+                                   "covering: genus 301 from the points alone); points: the points' winding number and distances")
+    poisson_depth: int = param(8, ge=5, le=11, doc="octree depth of the Poisson surface (8: cells of 1/256 of the box)")
+    poisson_point_weight: float = param(4.0, ge=0, doc="screening weight: higher follows the points more closely, noise too")
     ridge_every: int = param(200, ge=0, doc="every this many steps (from ridge_start on), the mf targets on the medial rays "
                              "become the learned |sdf| at the rays' medial points, so q is 0 there although the network "
                              "rounds the |sdf| ridge (0: the rays' radii from the data)")
@@ -100,14 +102,20 @@ class Train(Stage):
     inputs = {"points": POINTS, "normalization": NORMALIZATION}
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
-    version = "3"  # 2: the initial weights are seeded; 3: supervision routes, batches drawn by global step
+    version = "4"  # 2: the initial weights are seeded; 3: supervision routes, batches drawn by global step; 4: Poisson proxy surface of point clouds
+
+    @classmethod
+    def cache_config(cls, section: dict) -> dict:
+        """Only the chosen backbone's settings: a change to another backbone's does not retrain this one."""
+        chosen = section.get("backbone")
+        return {**section, "backbones": {chosen: (section.get("backbones") or {}).get(chosen)}}
 
     def run(self, ctx: StageContext) -> None:
         import torch
 
         from qmdf.fields.data import StepSampler
         from qmdf.fields.field import Field
-        from qmdf.fields.module import FieldModule
+        from qmdf.fields.module import FieldModule, build_net, build_terms
 
         cfg: TrainConfig = ctx.cfg
         points = ctx.load("points").points
@@ -115,8 +123,9 @@ class Train(Stage):
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         torch.manual_seed(ctx.seed)  # the initial weights (and Fourier frequencies) too: the same seed, the same field
         sampler = StepSampler(sup, cfg.surface_batch, cfg.volume_batch, ctx.seed)
-        module = FieldModule(cfg.backbone, params, route_losses(cfg, sup.route), cfg.medial_field, cfg.lr, cfg.lr_final,
-                             cfg.steps, sampler, cfg.ridge_every, cfg.ridge_start)
+        module = FieldModule(build_net(cfg.backbone, params), build_terms(route_losses(cfg, sup.route), cfg.medial_field),
+                             sampler, steps=cfg.steps, lr=cfg.lr, lr_final=cfg.lr_final, medial_field=cfg.medial_field,
+                             ridge_every=cfg.ridge_every, ridge_start=cfg.ridge_start)
         device = fit(ctx, cfg, module, cfg.steps)
         axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and cfg.medial_field else None
         field = Field(module.net.cpu(), ctx.load("normalization"),
@@ -166,7 +175,8 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
         mesh = (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64))
     t0 = time.perf_counter()
     sup = build_supervision(route, points.points, points.normals, np.random.default_rng([ctx.seed, 17]), mesh,
-                            cfg.volume_samples, cfg.uniform_fraction, cfg.ray_fraction)
+                            cfg.volume_samples, cfg.uniform_fraction, cfg.ray_fraction, proxy=cfg.point_surface,
+                            poisson_depth=cfg.poisson_depth, poisson_point_weight=cfg.poisson_point_weight)
     sup.stats.update(why=why, seconds=round(time.perf_counter() - t0, 2))
     ctx.notes["supervision"] = {"route": route, "why": why}
     ctx.log.info("supervision: %s (%s); %d volume samples, %d with a distance target, %d on medial rays (%.1f s)",
@@ -174,102 +184,28 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
                  sup.stats["seconds"])
     if "orientation" in sup.stats:
         ctx.log.info("normals: %s", sup.stats["orientation"])
+    if "proxy" in sup.stats:
+        ctx.notes["supervision"]["proxy"] = sup.stats["proxy"]
+        ctx.log.info("targets from: %s%s", sup.stats["proxy"], "" if "proxy_surface" not in sup.stats else
+                     " surface of the oriented points (%d vertices)" % sup.stats["proxy_surface"]["vertices"])
     return sup
 
 
 def fit(ctx: StageContext, cfg: TrainConfig, module, steps: int) -> str:
-    """Train ``module`` for ``steps`` with Lightning in the stage's work folder (checkpoints, resume, loggers);
-    returns the device it ran on. A training that ends short of ``steps`` is an error, never a result (the cache
-    would keep it as complete). Used by train and by feature_retrain."""
-    import gc
-    import warnings
+    """``qmdf.fields.fitting.fit`` in the stage's work folder with the configured logger; used by train and by
+    feature_retrain."""
+    from qmdf.fields.fitting import fit as fit_module
 
-    import lightning as L
-    import torch
-
-    from qmdf.fields.data import loader
-    from qmdf.fields.module import Diverged
-
-    L.seed_everything(ctx.seed, workers=True, verbose=False)
-    warnings.filterwarnings("ignore", message=".*LeafSpec.*")  # Lightning's own deprecation noise, not ours
-    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
-    work = ctx.work_dir
-    last = work / "last.ckpt"
-    resume = str(last) if cfg.resume and last.exists() else None
-    done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume else 0
-    checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work, save_last=True, save_top_k=0,
-                                                     every_n_train_steps=cfg.checkpoint_every)
-
-    class SaveOnInterrupt(L.pytorch.callbacks.Callback):
-        def on_exception(self, trainer, pl_module, exception):
-            if isinstance(exception, KeyboardInterrupt) and trainer.global_step > 0:
-                trainer.save_checkpoint(last)
-
-    show_bar = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
-    trainer = L.Trainer(
-        max_steps=steps, max_epochs=1, accelerator=cfg.accelerator, devices=1, logger=_logger(cfg, ctx),
-        callbacks=[checkpoint, SaveOnInterrupt()], enable_progress_bar=show_bar, enable_model_summary=False,
-        log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work),
-    )
-    if resume:
-        ctx.log.info("resuming from %s (step %d of %d)", last, done, steps)
-    stop = _StopSignal()
-    try:
-        with stop.terminate_as_interrupt():
-            trainer.fit(module, train_dataloaders=loader(steps), ckpt_path=resume)
-        if trainer.global_step != steps and not stop.received:
-            raise QmdfError(f"training stopped at step {trainer.global_step} of {steps}; its result is not kept")
-    except (KeyboardInterrupt, SystemExit) as exc:
-        # Lightning turns Ctrl-C into SystemExit(1) after its on_exception callbacks: the checkpoint is saved
-        if not (stop.received or isinstance(exc, KeyboardInterrupt)):
-            raise
-        stop.received = stop.received or signal.SIGINT
-    except Diverged as exc:
-        keep = f"; the last good checkpoint is {last}" if last.exists() else ""
-        raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
-    finally:
-        for logger in trainer.loggers:
-            logger.finalize("success")
-        if cfg.logger == "wandb":
-            import wandb
-
-            wandb.finish()  # one wandb run per job, also in a multirun
-        # Nothing of Lightning may outlive the stage: its loggers would flush into this scratch folder
-        # after the pipeline moved it into place.
-        device = str(trainer.strategy.root_device)
-        at = trainer.global_step
-        del trainer
-        gc.collect()
-    if stop.received:
-        raise Interrupted(f"{signal.Signals(stop.received).name} at training step {at} of {steps}: checkpoint saved at "
-                          f"{last}; run the same command again to resume", int(stop.received))
-    return device
+    show = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
+    return fit_module(module, steps, work_dir=ctx.work_dir, seed=ctx.seed, log=ctx.log, logger=_logger(cfg, ctx),
+                      checkpoint_every=cfg.checkpoint_every, resume=cfg.resume, accelerator=cfg.accelerator,
+                      show_progress=show, on_end=_wandb_finish if cfg.logger == "wandb" else None)
 
 
-class _StopSignal:
-    """Ctrl-C (SIGINT) and SIGTERM (what a cluster scheduler sends) end a training the same way: Lightning stops,
-    ``SaveOnInterrupt`` writes the checkpoint, and the run ends as interrupted with 128 + the signal's number."""
+def _wandb_finish() -> None:
+    import wandb
 
-    def __init__(self):
-        self.received = 0
-
-    @contextlib.contextmanager
-    def terminate_as_interrupt(self):
-        def handler(signum, frame):
-            self.received = signum
-            raise KeyboardInterrupt
-
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            for s in old:
-                signal.signal(s, handler)
-        except ValueError:  # not the main thread (an API caller's worker): signals stay theirs
-            old = {}
-        try:
-            yield
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+    wandb.finish()  # one wandb run per job, also in a multirun
 
 
 def _logger(cfg: TrainConfig, ctx: StageContext):

@@ -1,0 +1,51 @@
+"""Imports run one way: the library layer (geometry, medial, fields: plain functions over arrays) never imports
+the stages, the pipeline, the benchmarks or plugin discovery that sit on top of it, and the registry is a leaf.
+Read from the source (every import, inside functions too), so a lazy upward import cannot hide."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent.parent / "qmdf"
+LIBRARY = ("qmdf.geometry", "qmdf.medial", "qmdf.fields")
+ABOVE_THE_LIBRARY = ("qmdf.stages", "qmdf.stage", "qmdf.pipeline", "qmdf.bench", "qmdf.api", "qmdf.plugins",
+                     "qmdf.config", "qmdf.__main__", "qmdf.sweep", "qmdf.evaluate", "qmdf.view")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module)
+            out |= {f"{node.module}.{a.name}" for a in node.names}
+    return {m for m in out if m == "qmdf" or m.startswith("qmdf.")}
+
+
+def _within(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+MODULES = {_module_name(p): _imports(p) for p in PACKAGE.rglob("*.py")}
+
+
+def test_the_library_layer_imports_nothing_above_it():
+    bad = {m: sorted(i for i in imps if _within(i, ABOVE_THE_LIBRARY))
+           for m, imps in MODULES.items() if _within(m, LIBRARY)}
+    assert not {m: i for m, i in bad.items() if i}, "library modules importing the layers above them"
+
+
+def test_the_registry_is_a_leaf():
+    assert MODULES["qmdf.registry"] <= {"qmdf.errors", "qmdf.errors.PipelineError"}
+    assert MODULES["qmdf.errors"] == set()
+
+
+def test_every_module_was_read():
+    assert {"qmdf.medial.contraction", "qmdf.medial.covering", "qmdf.fields.fitting", "qmdf.stages.contract"} <= set(MODULES)
