@@ -38,9 +38,12 @@ def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint
             if isinstance(exception, KeyboardInterrupt) and trainer.global_step > 0:
                 trainer.save_checkpoint(last)
 
+    callbacks = [checkpoint, SaveOnInterrupt()]
+    if not show_progress:  # a log or a pipe gets a line now and then instead of a bar, so it never looks hung
+        callbacks.append(_heartbeat(L, log, steps))
     trainer = L.Trainer(
         max_steps=steps, max_epochs=1, accelerator=accelerator, devices=1, logger=logger if logger is not None else False,
-        callbacks=[checkpoint, SaveOnInterrupt()], enable_progress_bar=show_progress, enable_model_summary=False,
+        callbacks=callbacks, enable_progress_bar=show_progress, enable_model_summary=False,
         log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work_dir),
     )
     if resume_from:
@@ -74,6 +77,21 @@ def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint
         raise Interrupted(f"{signal.Signals(stop.received).name} at training step {at} of {steps}: checkpoint saved at "
                           f"{last}; run the same command again to resume", int(stop.received))
     return device
+
+
+def _heartbeat(L, log, steps: int):
+    """A Lightning callback: the step, the loss and the time left in the log, at most every 15 s."""
+    from qmdf.progress import Heartbeat
+
+    class LogHeartbeat(L.pytorch.callbacks.Callback):
+        def __init__(self):
+            self.heart = Heartbeat(log, "train: step", steps)
+
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+            self.heart.beat(trainer.global_step, f"loss {float(loss):.4g}")
+
+    return LogHeartbeat()
 
 
 class _StopSignal:

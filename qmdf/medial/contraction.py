@@ -224,11 +224,13 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
              features: np.ndarray | None = None, iterations: int = 3000, lr: float = 5e-4, lr_final: float = 1e-6,
              lambda_volume: float = 1.0, lambda_laplacian: float = 100.0, lattice: float = 1e-3,
              feature_weight: float = 10.0, feature_reach: float = 0.02, zip_weight: float = 1000.0,
-             zip_reach: float = 0.02, zip_near: float = 0.05, outside_weight: float = 2.0, log_every: int = 25):
+             zip_reach: float = 0.02, zip_near: float = 0.05, outside_weight: float = 2.0, log_every: int = 25,
+             on_iteration=None):
     """The contracted vertices, the per-iteration log of the energy terms and the volume, the initial volume,
     and how many field evaluations it took (see the module doc for the energy; ``contract``'s stage config
-    documents each weight). ``features``: feature points whose nearest vertices are pulled. Gradients are
-    closed-form (no autograd): the volume's per triangle (or tet), the Laplacian energy's 2/N L^T W L x."""
+    documents each weight). ``features``: feature points whose nearest vertices are pulled; ``on_iteration(done,
+    total)`` is called after every iteration. Gradients are closed-form (no autograd): the volume's per triangle
+    (or tet), the Laplacian energy's 2/N L^T W L x."""
 
     from qmdf.fields.lattice import LatticeQ
     from qmdf.geometry.tets import signed_volumes
@@ -278,6 +280,8 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
         zipped = zipper(x, it, g, zip_weight / len(surf)) if zipper is not None else None
         step = lr_final + (lr - lr_final) * 0.5 * (1 + math.cos(math.pi * it / iterations))
         _vector_adam(x, g, m, s, step, it + 1)
+        if on_iteration is not None:  # progress for the caller (the stage's heartbeat)
+            on_iteration(it + 1, iterations)
         if it % log_every == 0 or it == iterations - 1:
             geom = lambda_volume * max(vol, 0.0) / area0 + lambda_laplacian * e_lap
             rec = {"iteration": it, "q_mean": float(q.mean()), "volume": vol, "laplacian": e_lap,

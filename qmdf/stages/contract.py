@@ -58,6 +58,7 @@ class Contract(Stage):
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.tets import boundary_faces
         from qmdf.medial.contraction import contract, surface_mesh
+        from qmdf.progress import Heartbeat
 
         cfg: ContractConfig = ctx.cfg
         field = ctx.load("field")
@@ -71,7 +72,9 @@ class Contract(Stage):
             mesh = ctx.load("covering")
             v, t, faces = np.asarray(mesh.vertices), None, np.asarray(mesh.faces)
         features = ctx.load("feature_points").points if ctx.has("feature_points") else None
-        x, history, vol0, evaluations = contract(field, v, faces, t, features=features, **contraction_params(cfg))
+        heart = Heartbeat(ctx.log, "contract: iteration", cfg.iterations)
+        x, history, vol0, evaluations = contract(field, v, faces, t, features=features, **contraction_params(cfg),
+                                                 on_iteration=lambda done, total: heart.beat(done))
         ctx.save("membrane", surface_mesh(x, faces))
         if t is not None:
             ctx.save("contracted_tets", (x, t))
