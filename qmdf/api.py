@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -49,16 +50,17 @@ def _stage_input(source: Any, run_dir: Path) -> list[str]:
         return []
     if isinstance(source, (str, os.PathLike)):
         return [f"input.path={_quote(os.path.abspath(source))}"]
+    if not isinstance(source, np.ndarray) and not (hasattr(source, "vertices") and hasattr(source, "faces")):
+        raise InputError(f"cannot use a {type(source).__name__} as input: pass a path, an (N, 3) array or a "
+                         "trimesh.Trimesh")
     run_dir.mkdir(parents=True, exist_ok=True)
     if isinstance(source, np.ndarray):
         path = run_dir / "input.npy"
         np.save(path, np.asarray(source, dtype=np.float64))
         return [f"input.path={_quote(str(path))}", "input.kind=points"]
-    if hasattr(source, "vertices") and hasattr(source, "faces"):
-        path = run_dir / "input.ply"
-        path.write_bytes(source.export(file_type="ply"))
-        return [f"input.path={_quote(str(path))}", "input.kind=mesh"]
-    raise InputError(f"cannot use a {type(source).__name__} as input: pass a path, an (N, 3) array or a trimesh.Trimesh")
+    path = run_dir / "input.ply"
+    path.write_bytes(source.export(file_type="ply"))
+    return [f"input.path={_quote(str(path))}", "input.kind=mesh"]
 
 
 def _quote(path: str) -> str:
@@ -73,18 +75,30 @@ def run(source: Any = None, overrides: Sequence[str] = (), run_dir: str | os.Pat
 
     base = Path(base_dir or os.getcwd()).resolve()
     out = Path(run_dir) if run_dir is not None else base / "runs" / new_run_name()
-    cfg = compose(list(overrides) + _stage_input(source, out))
-    out.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(out / "qmdf.log")
-    handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] %(message)s"))
-    logging.getLogger().addHandler(handler)
-    if logging.getLogger().level > logging.INFO:
-        logging.getLogger("qmdf").setLevel(logging.INFO)
+    created = not out.exists()
+    handler = None
     try:
+        cfg = compose(list(overrides) + _stage_input(source, out))
+        if run_dir is None:  # the caller did not choose: say where the files go
+            log.info("qmdf writes this run to %s and its cache to %s (run_dir= and cache.dir=... choose)", out,
+                     base / cfg.cache.dir if cfg.cache.enabled else "nowhere")
+        out.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(out / "qmdf.log")
+        handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] %(message)s"))
+        logging.getLogger().addHandler(handler)
+        if logging.getLogger().level > logging.INFO:
+            logging.getLogger("qmdf").setLevel(logging.INFO)
         return Pipeline(cfg, out, base).run()
+    except BaseException:
+        if handler is not None:
+            handler.close()
+        if created and not (out / "manifest.json").exists():  # refused before the run began: no empty folder
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     finally:
-        logging.getLogger().removeHandler(handler)
-        handler.close()
+        if handler is not None:
+            logging.getLogger().removeHandler(handler)
+            handler.close()
 
 
 @dataclass

@@ -150,6 +150,14 @@ def _section(cfg: DictConfig | dict, key: str) -> Any:
     return OmegaConf.to_container(value, resolve=True) if isinstance(value, DictConfig) else value
 
 
+def _remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` and then its parents up to the first that is not empty (a failed stage's scratch)."""
+    with contextlib.suppress(OSError):
+        folder.rmdir()
+        if folder.parent.name == ".work":
+            folder.parent.rmdir()
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -294,7 +302,11 @@ class Pipeline:
                 log.info("[%s] reused cached result %s", step.name, key[:12])
             else:
                 log.info("[%s] running", step.name)
-                written = self._execute(step, ctx, final_dir)
+                try:
+                    written = self._execute(step, ctx, final_dir)
+                except BaseException:
+                    _remove_if_empty(ctx.work_dir)  # a checkpoint to resume from stays; an empty folder does not
+                    raise
                 if use_cache:
                     self._store(entry, final_dir, written)
             shutil.rmtree(ctx.work_dir, ignore_errors=True)

@@ -41,6 +41,18 @@ def test_errors_are_the_same_as_the_cli(tmp_path):
         qmdf.run(np.c_[np.random.rand(50, 2), np.zeros(50)], overrides(tmp_path), run_dir=tmp_path / "d")
     with pytest.raises(InputError, match="cannot use a dict"):
         qmdf.run({"points": 1}, overrides(tmp_path), run_dir=tmp_path / "e")
+    # a run refused before it began leaves no folder; one that failed in a stage keeps its manifest saying so
+    assert not (tmp_path / "c").exists() and not (tmp_path / "e").exists()
+    assert '"status": "failed"' in (tmp_path / "d" / "manifest.json").read_text()
+
+
+def test_the_api_says_where_it_writes_when_not_told(tmp_path, caplog):
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="qmdf"):
+        res = qmdf.run(None, overrides(tmp_path, "pipeline.stages=[sample]"), base_dir=tmp_path)
+    assert res.run_dir.is_relative_to(tmp_path / "runs")
+    assert f"qmdf writes this run to {res.run_dir}" in caplog.text
 
 
 def test_medial_axis_returns_the_mat_and_metrics(tmp_path):

@@ -163,6 +163,10 @@ def test_a_failing_stage_leaves_no_complete_looking_output(compose_cfg, tmp_path
     assert [s["name"] for s in manifest["stages"]] == ["sample"]
     assert sorted(p.name for p in out.iterdir()) == ["00_sample", "config.yaml", "manifest.json"]
     assert not list((tmp_path / "cache").glob("boom/*/artifacts.json"))
+    assert not list((tmp_path / "cache").glob("boom/*.work"))  # no empty scratch folder left behind
+    with pytest.raises(InputError):
+        run(compose_cfg, tmp_path, "pipeline.stages=[sample,boom]", "cache.enabled=false", run_dir=out)
+    assert not (out / ".work").exists()
 
 
 def test_a_stage_that_skips_an_output_fails(compose_cfg, tmp_path):
@@ -192,10 +196,14 @@ def test_manifest_records_every_artifact(compose_cfg, tmp_path):
     m = json.loads((res.run_dir / "manifest.json").read_text())
     assert m["status"] == "complete"
     arts = m["stages"][0]["artifacts"]
-    assert set(arts) == {"points", "clean_points", "normalization", "surface", "input_info"}
+    assert set(arts) == {"points", "normalization", "surface", "input_info"}
     for a in arts.values():
         path = res.run_dir / a["path"]
         assert path.stat().st_size == a["bytes"] and len(a["sha256"]) == 64
+    # the points before degradations are kept only when a degradation changed them (no identical copy)
+    degraded = run(compose_cfg, tmp_path, "pipeline.stages=[sample,scale]", "+sample.degradations.subsample.n=500",
+                   run_dir=tmp_path / "runs" / "degraded")
+    assert len(degraded.load("clean_points")) > len(degraded.load("points")) == 500
     assert m["stages"][1]["artifacts"]["scaled"]["path"] == "01_scale/scaled.npz"
     assert (res.run_dir / "config.yaml").exists()
 

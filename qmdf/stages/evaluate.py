@@ -43,7 +43,7 @@ class Evaluate(Stage):
 
     Config = EvaluateConfig
     inputs = {"mat": MAT}
-    optional_inputs = {"surface": MESH, "clean_points": POINTS, "contracted_tets": TETS, "reconstruction": MESH,
+    optional_inputs = {"surface": MESH, "clean_points": POINTS, "points": POINTS, "contracted_tets": TETS, "reconstruction": MESH,
                        "field": FIELD, "normalization": NORMALIZATION}
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
@@ -72,7 +72,8 @@ class Evaluate(Stage):
         if ctx.has("surface"):
             ref = ctx.load("surface")
             return np.asarray(ref.vertices), np.asarray(ref.faces), "input surface"
-        return ctx.load("clean_points").points, None, "input points"
+        clean = ctx.load("clean_points") if ctx.has("clean_points") else ctx.load("points")  # before degradations
+        return clean.points, None, "input points"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.evaluate import score_mat

@@ -69,9 +69,9 @@ class Sample(Stage):
 
     Config = SampleConfig
     config_deps = ("seed", "input")
-    outputs = {"points": POINTS, "clean_points": POINTS, "normalization": NORMALIZATION, "input_info": JSON}
-    optional_outputs = {"surface": MESH}
-    version = "3"  # 2: a mesh's sample normals point outward (or are dropped); 3: input_info
+    outputs = {"points": POINTS, "normalization": NORMALIZATION, "input_info": JSON}
+    optional_outputs = {"surface": MESH, "clean_points": POINTS}  # clean_points: the points before degradations
+    version = "4"  # 2: a mesh's sample normals point outward (or are dropped); 3: input_info; 4: clean_points only when degraded
 
     def fingerprint(self, ctx: StageContext) -> str:
         inp = ctx.settings.input
@@ -110,7 +110,8 @@ class Sample(Stage):
         # what train's supervision may use: a degraded mesh stands for a scan, so only its points count
         ctx.save("input_info", {"kind": "mesh" if geom.is_mesh else "points", "source": geom.source,
                                 "degradations": list(ctx.cfg.degradations), "normals": points.normals is not None})
-        ctx.save("clean_points", clean)
+        if ctx.cfg.degradations:  # else they are the points themselves: no second copy
+            ctx.save("clean_points", clean)
         ctx.save("normalization", norm)
         ctx.log.info("input %s: %s; unit-box scale %.6g", geom.source, what, norm.scale)
 
