@@ -93,6 +93,11 @@ def main() -> None:
 
     from qmdf.config import register_configs
 
+    if any(a in ("--help", "-h") for a in sys.argv[1:]):
+        from qmdf.cli_help import help_text
+
+        sys.stdout.write(help_text(conf_dir()))
+        raise SystemExit(0)
     sys.argv[1:] = quote_paths(sys.argv[1:])
     # One fresh name per invocation: the run (or the sweep) directory. Jobs of a multirun share it.
     os.environ[ENV_VAR] = new_run_name()

@@ -201,3 +201,14 @@ def test_paths_with_spaces_parentheses_and_accents_just_work(cli):
     proc = cli(f"input.path={folder}", STAGES_ONLY_SAMPLE)
     assert proc.returncode != 0 and "is a directory; give a mesh or point-cloud file" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_help_lists_every_setting_with_its_doc(cli):
+    """`--help` printed Hydra's config dump without the schemas' docs."""
+    proc = cli("--help")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert out.startswith("usage: python -m qmdf") and "+experiment=  cad_features" in out
+    assert "  contract.iterations  (int = 3000)\n      optimisation steps (paper: about 3k)" in out
+    assert "train.point_surface  (str = 'poisson')" in out and "  input.path  (Optional = None)" in out
+    assert not list((cli.cwd).glob("runs")) and not list(cli.cwd.glob("outputs"))  # no run for a help
