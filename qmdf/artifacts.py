@@ -165,3 +165,8 @@ FILE = ArtifactKind("file", "")
 def file_kind(suffix: str) -> ArtifactKind:
     """A file the stage writes itself, with its extension (``.ply``, ``.obj``...)."""
     return ArtifactKind("file", suffix)
+
+
+def kind_named(name: str) -> ArtifactKind | None:
+    """The built-in artifact kind called ``name`` (None for a plugin's own kind)."""
+    return next((k for k in (POINTS, NORMALIZATION, MESH, JSON, TETS, GRID, MAT, FIELD) if k.name == name), None)

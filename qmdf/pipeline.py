@@ -29,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from qmdf import config as config_mod
 from qmdf import __version__
-from qmdf.artifacts import ArtifactKind, file_digest, write_json
+from qmdf.artifacts import ArtifactKind, file_digest, kind_named, write_json
 from qmdf.errors import Interrupted, PipelineError, QmdfError
 from qmdf.registry import STAGES
 from qmdf.stage import RunSettings, Stage, StageContext
@@ -136,8 +136,14 @@ class RunResult:
 
     def load(self, name: str) -> Any:
         rec = self._record(name)
-        producer = STAGES.get(rec.producer).obj
-        kind = {**producer.outputs, **producer.optional_outputs}[name]
+        if rec.producer in STAGES:
+            producer = STAGES.get(rec.producer).obj
+            kind = {**producer.outputs, **producer.optional_outputs}[name]
+        else:  # an opened run, its stages not imported: the built-in kind by the name the manifest gives
+            kind = kind_named(rec.kind)
+            if kind is None:
+                raise PipelineError(f"artifact '{name}' is of kind '{rec.kind}', which only its stage "
+                                    f"'{rec.producer}' can read: import it first")
         return kind.load(rec.path) if kind.load else rec.path
 
 
@@ -291,7 +297,7 @@ class Pipeline:
         entry = self.cache_dir / step.name / key
         ctx.work_dir = entry.with_name(f"{key}.work") if self.cache.enabled else self.run_dir / ".work" / step.dirname
         ctx.work_dir.mkdir(parents=True, exist_ok=True)
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         status = "ran"
         use_cache = self.cache.enabled
         with self._locked(entry) if use_cache else contextlib.nullcontext():
@@ -313,7 +319,8 @@ class Pipeline:
         seconds = time.perf_counter() - t0
         record = {
             "index": step.index, "name": step.name, "status": status, "key": key,
-            "seconds": round(seconds, 3), "peak_rss_mb": peak_rss_mb(), "dir": step.dirname, "artifacts": {},
+            "seconds": round(seconds, 3), "cpu_seconds": round(time.process_time() - cpu0, 3),  # all threads
+            "peak_rss_mb": peak_rss_mb(), "dir": step.dirname, "artifacts": {},
         }
         for name, rel in written.items():
             path = final_dir / rel

@@ -83,3 +83,17 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
     (row,) = json.loads((cli.cwd / "rows.json").read_text())
     assert row["shape"] == "box" and row["recontract"] == ["contract.iterations=50"]
     assert 0 <= row["sharp_within_0.01_after"] <= 1 and row["cd_after"] > 0
+
+
+def test_bench_speed_times_every_stage_beside_its_floor(cli):
+    proc = cli("speed", "--only", "teacup", "--json", "speed.json", "--out", "runs/speed", "+debug=fast",
+               module="qmdf.bench")
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    (row,) = json.loads((cli.cwd / "speed.json").read_text())
+    stages = {s["stage"]: s for s in row["stages"]}
+    assert list(stages) == ["sample", "train", "cover", "contract", "sheet", "export", "evaluate"]
+    for name in ("sample", "train", "cover", "contract", "export", "evaluate"):
+        s = stages[name]
+        assert s["floor_s"] > 0 and s["wall_s"] > 0 and s["cpu_s"] >= 0 and s["peak_mb"] > 0 and s["floor"], name
+    assert stages["sheet"]["floor_s"] is None
+    assert "one marching-cubes pass over 32^3" in proc.stdout and "ratio" in proc.stdout

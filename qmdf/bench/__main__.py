@@ -8,6 +8,7 @@ SUITES = {
     "extraction": "qmdf.bench.extraction",
     "field": "qmdf.bench.field",
     "features": "qmdf.bench.features",
+    "speed": "qmdf.bench.speed",
 }
 
 
