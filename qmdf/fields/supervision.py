@@ -150,14 +150,13 @@ def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None
         ray = np.concatenate([ray, ray_idx])
         stats["medial_radius"] = {"median": float(np.median(radii)), "max": float(radii.max())}
     free = slice(0, len(volume) - n_rays)  # the samples not on a ray
-    if route == "mesh":
-        v, f = mesh
+    if route == "mesh" or proxy_mesh is not None:
+        # every sample from the surface, the rays' depths too (a radius can over-shoot the axis by tol / 2); its
+        # foot is the ray origin nearest to its closest surface point
+        v, f = mesh if route == "mesh" else proxy_mesh
         d, closest = mesh_distance(v, f, volume)
         sdf = np.where(mesh_winding_number(v, f, volume) > 0.5, -d, d)
-        foot = cKDTree(points).query(closest[free], workers=-1)[1]
-    elif proxy_mesh is not None:  # as for a mesh: the rays' depths too (a radius can over-shoot the axis by tol / 2)
-        sdf = _points_sdf_targets(points, normals, volume, stats, proxy_mesh)
-        foot = cKDTree(origins).query(mesh_distance(*proxy_mesh, volume[free])[1], workers=-1)[1]
+        foot = cKDTree(points if origins is None else origins).query(closest[free], workers=-1)[1]
     elif route != "paper":
         sdf[free] = _points_sdf_targets(points, normals, volume[free], stats)
         foot = cKDTree(points).query(volume[free], workers=-1)[1]
@@ -190,16 +189,11 @@ def _mesh_outward_normals(points, normals, v, f, stats) -> np.ndarray:
     return np.where(inward[:, None], -n, n)
 
 
-def _points_sdf_targets(points, normals, queries, stats, proxy_mesh=None) -> np.ndarray:
-    """Signed distance targets. With a proxy surface: its winding number's sign and the distance to it, everywhere
-    (on the sparse bunny, leaving out the band within two gaps of the points, as below, let the grid backbone
-    leave holes and a non-metric inside there). Without: the points' winding number, only where it is clearly 0
-    or 1, and the distance to the points only beyond twice the local gap (it over-estimates the distance to a
-    sampled surface by about gap^2 / (8 d)); NaN elsewhere."""
-    if proxy_mesh is not None:
-        v, f = proxy_mesh
-        d = mesh_distance(v, f, queries)[0]
-        return np.where(mesh_winding_number(v, f, queries) > 0.5, -d, d)
+def _points_sdf_targets(points, normals, queries, stats) -> np.ndarray:
+    """Signed distance targets from the points alone: their winding number where it is clearly 0 or 1, and the
+    distance to them beyond twice the local gap (it over-estimates the distance to a sampled surface by about
+    gap^2 / (8 d)); NaN elsewhere. (With a proxy surface the targets come from it, everywhere: on the sparse bunny
+    this band left the grid backbone free to leave holes and a non-metric inside.)"""
     d, nearest = cKDTree(points).query(queries, workers=-1)
     gap = local_spacing(points, k=8, low=0.0, high=1.0)
     w = points_winding_number(points, normals, queries, point_areas(points))
