@@ -72,7 +72,7 @@ def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None
                       mesh: tuple[np.ndarray, np.ndarray] | None = None, volume_samples: int = 200_000,
                       uniform_fraction: float = 0.25, ray_fraction: float = 0.4, box: float = 0.6,
                       proxy: str = "poisson", poisson_depth: int = 8, poisson_point_weight: float = 4.0,
-                      proxy_rays: int = 50_000) -> Supervision:
+                      proxy_rays: int = 50_000, zero_level: str = "input") -> Supervision:
     """The training targets of ``route`` (see the module doc). Points are in the unit box."""
     stats: dict = {"route": route}
     origins, ray_normals, proxy_mesh = None, None, None  # rays start at the points, along their normals
@@ -170,7 +170,13 @@ def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None
     stats["volume_samples"] = int(len(volume))
     stats["sdf_targets"] = int(np.isfinite(sdf).sum())
     stats["mf_targets"] = int(np.isfinite(mf).sum())
-    return Supervision(route, points, normals, volume, sdf, mf, radii, ray, stats, origins, ray_normals)
+    surface, surface_normals = points, normals
+    if proxy_mesh is not None and zero_level == "proxy":
+        # the zero level set through the proxy's own samples: a noisy cloud's points pull the learned surface
+        # into the noise (the noisy torus: a rough zero set with islands), the proxy has smoothed it
+        surface, surface_normals = origins, ray_normals
+        stats["zero_level"] = "proxy"
+    return Supervision(route, surface, surface_normals, volume, sdf, mf, radii, ray, stats, origins, ray_normals)
 
 
 def _unit(n: np.ndarray) -> np.ndarray:

@@ -46,6 +46,10 @@ class TrainConfig:
                                doc="on a point cloud (oriented_points, raw_points): poisson: a screened Poisson surface of the "
                                    "oriented points gives the sign, the distances and the medial rays (the sparse bunny's "
                                    "covering: genus 301 from the points alone); points: the points' winding number and distances")
+    zero_level: str = param("input", choices=("input", "proxy"),
+                            doc="with a Poisson surface: the zero level set passes through the input points (input) or "
+                                "through samples of the Poisson surface (proxy: smooths a noisy cloud's noise away, "
+                                "loses the exactness of a clean sparse cloud's points)")
     poisson_depth: int = param(8, ge=5, le=11, doc="octree depth of the Poisson surface (8: cells of 1/256 of the box)")
     poisson_point_weight: float = param(4.0, ge=0, doc="screening weight: higher follows the points more closely, noise too")
     ridge_every: int = param(200, ge=0, doc="every this many steps (from ridge_start on), the mf targets on the medial rays "
@@ -176,7 +180,8 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
     t0 = time.perf_counter()
     sup = build_supervision(route, points.points, points.normals, np.random.default_rng([ctx.seed, 17]), mesh,
                             cfg.volume_samples, cfg.uniform_fraction, cfg.ray_fraction, proxy=cfg.point_surface,
-                            poisson_depth=cfg.poisson_depth, poisson_point_weight=cfg.poisson_point_weight)
+                            poisson_depth=cfg.poisson_depth, poisson_point_weight=cfg.poisson_point_weight,
+                            zero_level=cfg.zero_level)
     sup.stats.update(why=why, seconds=round(time.perf_counter() - t0, 2))
     ctx.notes["supervision"] = {"route": route, "why": why}
     ctx.log.info("supervision: %s (%s); %d volume samples, %d with a distance target, %d on medial rays (%.1f s)",
