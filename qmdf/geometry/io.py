@@ -119,6 +119,15 @@ def _read_with_trimesh(path: Path, suffix: str) -> InputGeometry:
         loaded = trimesh.load(path, file_type=suffix[1:], process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage; all mean "unreadable"
         raise InputError(f"cannot read {path} as a {suffix[1:].upper()} file: {_short(exc)}") from None
+    try:
+        return _from_trimesh(loaded, path)
+    except (ValueError, IndexError, TypeError) as exc:  # a damaged file trimesh half-read (fuzzing found these)
+        raise InputError(f"cannot read {path} as a {suffix[1:].upper()} file: malformed ({_short(exc)})") from None
+
+
+def _from_trimesh(loaded, path: Path) -> InputGeometry:
+    import trimesh
+
     if isinstance(loaded, trimesh.Scene):
         geoms = list(loaded.geometry.values())
         meshes = [g for g in geoms if isinstance(g, trimesh.Trimesh)]
