@@ -58,6 +58,8 @@ class InputConfig:
 class PipelineConfig:
     stages: list[str] = param(factory=lambda: list(DEFAULT_PIPELINE), doc="stage names, run in order")
     stop_after: Optional[str] = param(None, doc="stop after this stage (e.g. sample), skipping the rest")
+    report: bool = param(True, doc="write report.html (an interactive 3D view, pictures, metrics, stage times, "
+                         "config) into the run folder when the run ends")
 
 
 @dataclass

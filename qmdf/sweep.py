@@ -1,4 +1,5 @@
-"""Collect a multirun's per-job results into one table: ``metrics.csv`` and ``metrics.md`` in the sweep dir.
+"""Collect a multirun's per-job results into one table: ``metrics.csv``, ``metrics.md`` and ``report.html`` (each
+job linked to its own report) in the sweep dir.
 
 Runs at the end of every multirun (a Hydra callback, see conf/config.yaml), and by hand:
 ``python -m qmdf.sweep runs/multirun/DATE/TIME``.
@@ -54,6 +55,9 @@ def write_tables(sweep_dir: Path, rows: list[dict[str, Any]]) -> tuple[Path, Pat
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(fmt(r.get(c)) for c in cols) + " |" for r in rows]
     md_path.write_text("\n".join(lines) + "\n")
+    from qmdf.report import sweep_report
+
+    sweep_report(sweep_dir, rows)  # report.html beside them, linking each job's own report
     return csv_path, md_path
 
 

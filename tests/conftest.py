@@ -17,7 +17,7 @@ FAST = ["input.shape_resolution=32", "sample.n_points=2000", "train.steps=3", "t
         "train.volume_batch=256", "train.backbone=mlp", "train.backbones.mlp.width=32", "train.volume_samples=5000",
         "train.picture=false", "cover.resolution=32",
         "cover.eps=0.05", "contract.iterations=5", "export.reconstruction_resolution=24", "export.picture=false",
-        "evaluate.samples=500", "evaluate.resolution=24", "evaluate.picture=false"]
+        "evaluate.samples=500", "evaluate.resolution=24", "evaluate.picture=false", "pipeline.report=false"]
 
 
 def run_cli(args: list[str], cwd: Path, env: dict | None = None, module: str = "qmdf") -> subprocess.CompletedProcess:

@@ -102,6 +102,8 @@ def test_evaluate_stage_and_multirun_table(cli):
     cds = [float(r["chamfer"]) for r in rows]
     assert cds[0] < 2e-4 and cds[1] == pytest.approx(0.01, abs=5e-4) and cds[2] == pytest.approx(0.02, abs=5e-4)
     assert (table.parent / "metrics.md").read_text().startswith("| job | overrides | status |")
+    sweep_page = (table.parent / "report.html").read_text()  # each job linked to its own report
+    assert all(f'href="{j}/report.html"' in sweep_page for j in (0, 1, 2)) and "torus_mat.radius_offset=0.02" in sweep_page
     # sample was computed once above and reused by every job of the sweep
     jobs = manifests(table.parent)
     assert all(j["stages"][0]["status"] == "cached" for j in jobs)
