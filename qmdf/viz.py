@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qmdf.geometry.triangles import face_cross
+
 
 def _decimated(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | None, max_faces: int):
     """At most ``max_faces`` faces for drawing; per-vertex values follow their nearest kept vertex."""
@@ -39,7 +41,7 @@ def render_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, values: np.
     segments = [(np.asarray(vertices, float)[np.asarray(e, np.int64).reshape(-1, 2)], colour) for e, colour in lines]
     v, f, val = _decimated(np.asarray(vertices, float), np.asarray(faces), values, max_faces)
     tri = v[f]
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals = face_cross(v, f)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
     shade = 0.45 + 0.55 * np.abs(normals @ np.array([0.3, -0.4, 0.85]) / np.linalg.norm([0.3, -0.4, 0.85]))
     if val is not None:

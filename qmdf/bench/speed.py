@@ -157,7 +157,7 @@ def print_table(rows: list[dict]) -> None:
         print(f"  {'stage':<10}{'wall s':>8}{'CPU s':>8}{'peak MB':>9}{'floor s':>9}{'ratio':>8}  floor")
         for s in row["stages"]:
             f = s["floor_s"]
-            ratio = f"{s['wall_s'] / f:.0f}x" if f else "-"
+            ratio = (f"{s['wall_s'] / f:.1f}x" if s["wall_s"] / f < 10 else f"{s['wall_s'] / f:.0f}x") if f else "-"
             print(f"  {s['stage']:<10}{s['wall_s']:>8.1f}{s['cpu_s'] or 0:>8.1f}{s['peak_mb'] or 0:>9.0f}"
                   f"{f if f is not None else float('nan'):>9.2f}{ratio:>8}  {s['floor']}")
     print("\nwall and CPU (all threads) per stage from the run's manifest; floor: the same work by the fastest "

@@ -13,6 +13,7 @@ import numpy as np
 
 from qmdf.errors import InputError
 from qmdf.geometry.pointset import PointSet
+from qmdf.geometry.triangles import face_areas
 
 log = logging.getLogger(__name__)
 
@@ -220,7 +221,7 @@ def _clean_mesh(geom: InputGeometry) -> InputGeometry:
     distinct = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
     keep = in_range & distinct
     fk = f[keep]
-    area2 = np.linalg.norm(np.cross(v[fk[:, 1]] - v[fk[:, 0]], v[fk[:, 2]] - v[fk[:, 0]]), axis=1)
+    area2 = 2 * face_areas(v, fk)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
     good_area = area2 > 1e-12 * diag * diag
     keep[np.flatnonzero(keep)[~good_area]] = False

@@ -4,12 +4,13 @@ from __future__ import annotations
 import numpy as np
 
 from qmdf.geometry.pointset import PointSet
+from qmdf.geometry.triangles import face_cross
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.random.Generator) -> PointSet:
     """Uniform (area-weighted) samples on a triangle mesh, with the face normals at the samples."""
     tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    cross = face_cross(vertices, faces)
     area2 = np.linalg.norm(cross, axis=1)
     face = rng.choice(len(faces), size=count, p=area2 / area2.sum())
     r1, r2 = rng.random(count), rng.random(count)

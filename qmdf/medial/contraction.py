@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from qmdf.errors import QmdfError
+from qmdf.geometry.triangles import face_areas
 
 
 class InsideQ:
@@ -59,8 +60,7 @@ def umbrella(n_vertices: int, faces: np.ndarray):
 
 def area_weights(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """w_i = max_j sqrt(A_j) / sqrt(A_i), A_i the area of the faces around vertex i (DCUDF)."""
-    tri = v[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = face_areas(v, faces)
     a = np.bincount(faces.ravel(), np.repeat(area, 3), minlength=len(v))
     a = np.maximum(a, 1e-20)
     return np.sqrt(a.max()) / np.sqrt(a)
@@ -243,8 +243,7 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
         tets = tets[:, [0, 2, 1, 3]]
     L = umbrella(len(x), faces)
     LT = L.T.tocsr()
-    tri = x[faces]
-    area0 = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+    area0 = float(face_areas(x, faces).sum())
     w = area_weights(x, faces)
     margin = 0.05
     q_lattice = LatticeQ(field, lattice, x.min(0) - margin, x.max(0) + margin) if lattice > 0 else None

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from qmdf.geometry.triangles import face_areas
+
 
 @njit(cache=True)
 def _best(QA, Qb, Qc, m, a, b):
@@ -154,7 +156,7 @@ def initial_quadrics(m: np.ndarray, faces: np.ndarray, edges: np.ndarray, bounda
     x, r = m[:, :3], m[:, 3]
     if len(faces):
         tri = x[faces]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        area = face_areas(x, faces)
         n, d, ok = slab_planes(tri, r[faces])
         for side in (0, 1):
             Q.add_planes(faces[ok], np.column_stack([n[ok, side], np.ones(int(ok.sum()))]), d[ok, side], area[ok])
@@ -207,9 +209,7 @@ def simplify_medial_mesh(vertices: np.ndarray, radii: np.ndarray, edges: np.ndar
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
     n = len(m)
     tips = np.zeros(n, bool) if tips is None else np.array(tips, bool)  # merged tips are marked in it
-    tri = m[faces, :3]
-    mean_area = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).mean()) \
-        if len(faces) else 0.0
+    mean_area = float(face_areas(m[:, :3], faces).mean()) if len(faces) else 0.0
     if mean_area == 0 and len(edges):
         mean_area = float(np.mean(np.sum((m[edges[:, 0], :3] - m[edges[:, 1], :3]) ** 2, 1)))
     Q = initial_quadrics(m, faces, edges, boundary_weight, tips, 1e-3 * max(mean_area, 1e-12))
