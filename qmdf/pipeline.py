@@ -157,7 +157,7 @@ def _section(cfg: DictConfig | dict, key: str) -> Any:
 
 
 def _remove_if_empty(folder: Path) -> None:
-    """Remove ``folder`` and then its parents up to the first that is not empty (a failed stage's scratch)."""
+    """Remove ``folder`` if it is empty (a failed stage's scratch), and the run's ``.work`` if that empties it."""
     with contextlib.suppress(OSError):
         folder.rmdir()
         if folder.parent.name == ".work":

@@ -6,8 +6,10 @@
 - ``oriented_points``: a point cloud with normals, after the winding-number consistency check
   (``qmdf.geometry.normals.orient_by_winding``). With ``proxy="poisson"`` (the default) a screened Poisson surface
   of the oriented points stands in for the mesh (``qmdf.geometry.proxy_surface``): sign from its winding number,
-  the distance to it as the metric target everywhere, the medial rays cast from the points' feet on it along its
-  normals; the zero level set is still asked to pass through the input points. With ``proxy="points"``: sign from
+  the distance to it as the metric target everywhere, the medial rays cast from samples of it along its normals;
+  the zero level set still passes through the input points (``zero_level="proxy"``: through the samples, for a
+  noisy cloud). A Poisson surface that does not close (normals that contradict each other) is refused and the
+  points route below is taken. With ``proxy="points"``: sign from
   the cloud's winding number, the distance to the points as a metric target where it is one (farther than the
   sampling's gaps, where the winding number is decided), rays from the points.
 - ``raw_points``: no normals; estimated and oriented (plane fits, spanning tree, winding-number patches), then as
