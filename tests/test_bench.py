@@ -97,3 +97,16 @@ def test_bench_speed_times_every_stage_beside_its_floor(cli):
         assert s["floor_s"] > 0 and s["wall_s"] > 0 and s["cpu_s"] >= 0 and s["peak_mb"] > 0 and s["floor"], name
     assert stages["sheet"]["floor_s"] is None
     assert "one marching-cubes pass over 32^3" in proc.stdout and "ratio" in proc.stdout
+
+
+def test_bench_faults_counts_what_survives(cli):
+    """One SIGINT trial (the signals in turn over more trials), a few fuzzed files, a 2-job shared-cache multirun."""
+    proc = cli("faults", "--trials", "1", "--fuzz", "5", "--jobs", "2", "--out", "runs/faults", "--json", "f.json",
+               module="qmdf.bench")
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    report = json.loads((cli.cwd / "f.json").read_text())
+    (trial,) = report["interrupts"]
+    assert trial["signal"] == "SIGINT" and trial["stopped_exit"] == 130 and trial["rerun_exit"] == 0
+    assert trial["resumed"] and trial["steps"] == 400 and trial["max_weight_diff"] < 1e-5
+    assert report["fuzz"]["crashed"] == 0 and report["fuzz"]["read"] + report["fuzz"]["refused"] == 30
+    assert report["multirun"]["complete"] == 2 and report["multirun"]["artifacts_not_matching_cache"] == 0

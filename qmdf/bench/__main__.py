@@ -9,6 +9,7 @@ SUITES = {
     "field": "qmdf.bench.field",
     "features": "qmdf.bench.features",
     "speed": "qmdf.bench.speed",
+    "faults": "qmdf.bench.faults",
 }
 
 
