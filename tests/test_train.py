@@ -205,24 +205,29 @@ def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_f
     from qmdf.errors import Interrupted
     from qmdf.fields import module as module_mod
 
-    original = module_mod.FieldModule.training_step
+    original = module_mod.FieldModule.optimizer_step
+    sent = []
 
-    def signal_at_30(self, batch, idx):
-        if self.global_step == 30:
-            os.kill(os.getpid(), signum)  # a real signal, delivered to this process's main thread
-        return original(self, batch, idx)
+    def signal_after_the_update(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        if self.global_step >= 30 and not sent:
+            # a real signal, delivered to this process's main thread right after the weights moved and before
+            # the step is counted done: a checkpoint written here resumed into another field (bench faults)
+            sent.append(self.global_step)
+            os.kill(os.getpid(), signum)
+        return out
 
     settings = ("train.steps=80", "train.checkpoint_every=50")
-    module_mod.FieldModule.training_step = signal_at_30
+    module_mod.FieldModule.optimizer_step = signal_after_the_update
     try:
-        with pytest.raises(Interrupted, match="at training step 30 of 80: checkpoint saved") as info:
+        with pytest.raises(Interrupted, match="at training step 31 of 80: checkpoint saved") as info:
             run(compose_cfg, tmp_path, *settings, name="a")
     finally:
-        module_mod.FieldModule.training_step = original
+        module_mod.FieldModule.optimizer_step = original
     assert info.value.exit_code == code
     assert json.loads((tmp_path / "a" / "manifest.json").read_text())["status"] == "interrupted"
     (work,) = (tmp_path / "cache" / "train").glob("*.work/last.ckpt")
-    assert torch.load(work, weights_only=True)["global_step"] == 30
+    assert torch.load(work, weights_only=True)["global_step"] == 31  # the step under way finished first
     res = run(compose_cfg, tmp_path, *settings, name="b")
     assert res.load("training")["history"][-1]["step"] == 70
     whole = run(compose_cfg, tmp_path, *settings, f"cache.dir={tmp_path / 'other_cache'}", name="c")

@@ -86,7 +86,7 @@ def _read_xyz(path: Path) -> InputGeometry:
 def _read_npy(path: Path) -> InputGeometry:
     try:
         data = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
+    except Exception as exc:  # a damaged header fails in numpy's own parser (TokenError, SyntaxError, ...)
         raise InputError(f"cannot read {path} as a .npy array: {_short(exc)}") from None
     if not np.issubdtype(data.dtype, np.number):
         raise InputError(f"{path} holds a {data.dtype} array; expected numbers of shape (N, 3) or (N, 6)")
