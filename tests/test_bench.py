@@ -108,5 +108,6 @@ def test_bench_faults_counts_what_survives(cli):
     (trial,) = report["interrupts"]
     assert trial["signal"] == "SIGINT" and trial["stopped_exit"] == 130 and trial["rerun_exit"] == 0
     assert trial["resumed"] and trial["steps"] == 400 and trial["max_weight_diff"] < 1e-5
-    assert report["fuzz"]["crashed"] == 0 and report["fuzz"]["read"] + report["fuzz"]["refused"] == 30
+    fuzz = report["fuzz"]
+    assert fuzz["crashed"] == 0 and fuzz["read"] + fuzz["refused"] == 35 == sum(fuzz["error_classes"].values()) + fuzz["read"]
     assert report["multirun"]["complete"] == 2 and report["multirun"]["artifacts_not_matching_cache"] == 0

@@ -20,6 +20,8 @@ from qmdf.geometry.io import load_geometry
 
 def _valid(suffix: str) -> bytes:
     mesh = trimesh.creation.icosphere(subdivisions=1)
+    if suffix == ".ply binary":
+        return mesh.export(file_type="ply", encoding="binary")
     if suffix == ".xyz":
         return "\n".join(" ".join(f"{c:.5f}" for c in p) for p in mesh.vertices).encode()
     if suffix == ".npy":
@@ -31,13 +33,13 @@ def _valid(suffix: str) -> bytes:
     return out if isinstance(out, bytes) else out.encode()
 
 
-SUFFIXES = (".xyz", ".npy", ".ply", ".obj", ".off", ".stl")
+SUFFIXES = (".xyz", ".npy", ".ply", ".ply binary", ".obj", ".off", ".stl")
 SETTINGS = settings(max_examples=40, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
 
 def _load(tmp_path, suffix: str, data: bytes) -> None:
-    path = tmp_path / f"fuzz{suffix}"
+    path = tmp_path / f"fuzz{suffix.split()[0]}"
     path.write_bytes(data)
     try:
         load_geometry(path)

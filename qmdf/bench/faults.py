@@ -4,8 +4,8 @@
    SIGTERM or SIGKILL in turn once a checkpoint exists, then run again with the same command: the exit status of
    the stopped run (130, 143, -9), the rerun's status, its step count, and the largest weight difference to an
    uninterrupted training (0 to round-off is the requirement).
-2. Reader fuzzing: random bytes and damaged valid files of every input format through ``load_geometry``:
-   how many were read, refused with an input error, or crashed (must be 0).
+2. Reader fuzzing: random bytes and damaged valid files of every input format (PLY ascii and binary) through
+   ``load_geometry``: how many were read, refused with an input error (by class), or crashed (must be 0).
 3. A multirun of M jobs on 2 joblib workers sharing one cache (the same seed, so every job wants the same
    entries at once): jobs complete, and every cache entry holds the files its manifest records, byte for byte.
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -84,8 +85,10 @@ def fuzz_readers(per_format: int, seed: int = 0) -> dict:
     for ext in ("ply", "obj", "off", "stl"):
         data = mesh.export(file_type=ext, **({"encoding": "ascii"} if ext == "ply" else {}))
         valid["." + ext] = data if isinstance(data, bytes) else data.encode()
+    valid[".ply binary"] = mesh.export(file_type="ply", encoding="binary")
     counts = {"read": 0, "refused": 0, "crashed": 0}
     crashes = []
+    classes: dict[str, int] = {}
     work = Path(os.environ.get("TMPDIR", "/tmp")) / f"qmdf_fuzz_{os.getpid()}"
     work.mkdir(parents=True, exist_ok=True)
     for suffix, good in valid.items():
@@ -97,17 +100,21 @@ def fuzz_readers(per_format: int, seed: int = 0) -> dict:
                 for _ in range(int(rng.integers(0, 6))):
                     data[int(rng.integers(len(data)))] = int(rng.integers(256))
                 data = bytes(data[: max(1, int(rng.uniform(0.05, 1.0) * len(data)))])
-            path = work / f"f{suffix}"
+            path = work / f"f{suffix.split()[0]}"
             path.write_bytes(data)
             try:
                 load_geometry(path)
                 counts["read"] += 1
-            except InputError:
+            except InputError as exc:
                 counts["refused"] += 1
+                # the error's class: its words up to the first detail, the file's name taken out
+                kind = re.sub(r"\d+", "N", " ".join(str(exc).replace(str(path), "FILE").split(":")[0].split()[:8]))
+                classes[kind] = classes.get(kind, 0) + 1
             except Exception as exc:  # noqa: BLE001 - what the bench counts
                 counts["crashed"] += 1
                 crashes.append(f"{suffix}: {type(exc).__name__}: {exc}"[:200])
-    return {**counts, "per_format": per_format, "crashes": crashes[:10]}
+    return {**counts, "per_format": per_format, "formats": len(valid), "crashes": crashes[:10],
+            "error_classes": dict(sorted(classes.items(), key=lambda kv: -kv[1]))}
 
 
 def multirun_cache(out: Path, jobs: int, timeout: float = 3600) -> dict:
@@ -152,8 +159,9 @@ def main(argv: list[str]) -> int:
                   f"max weight difference to the uninterrupted field {r.get('max_weight_diff', float('nan')):.2e}")
     if args.fuzz:
         report["fuzz"] = f = fuzz_readers(args.fuzz)
-        print(f"fuzzed readers: {6 * f['per_format']} files: {f['read']} read, {f['refused']} refused with one line, "
-              f"{f['crashed']} crashed" + ("".join(f"\n  {c}" for c in f["crashes"])))
+        print(f"fuzzed readers: {f['formats'] * f['per_format']} files: {f['read']} read, {f['refused']} refused with "
+              f"one line, {f['crashed']} crashed" + "".join(f"\n  crash: {c}" for c in f["crashes"])
+              + "".join(f"\n  {n:>5}  {k}" for k, n in f["error_classes"].items()))
     if args.jobs:
         report["multirun"] = m = multirun_cache(args.out, args.jobs)
         print(f"multirun: {m['jobs']} jobs on 2 workers, one cache: exit {m['exit']}, {m['complete']} complete, "
