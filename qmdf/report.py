@@ -16,9 +16,6 @@ import numpy as np
 DISPLAY_FACES = 12_000
 DISPLAY_POINTS = 10_000
 
-#: The paper's Table 3 (CD and HD x 1e-3, unit box; chi), by input file stem.
-PAPER = {"bunny": (1.86, 12.56, 1), "kitten": (1.58, 19.96, 0), "block": (0.95, 21.41, -2),
-         "sharp_sphere": (1.67, 19.69, 1)}
 
 
 def _display_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -45,6 +42,8 @@ def figure(run):
     """The plotly figure of a run (a ``RunResult``): the MAT and, one legend click away, the rest."""
     import plotly.graph_objects as go
 
+    from qmdf.geometry.metrics import edges_off_polygons
+
     traces = []
     arts = run.artifacts
     if "mat" in arts:
@@ -59,12 +58,11 @@ def figure(run):
             traces.append(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers", name="MAT (by radius)",
                                        marker={"size": 3, "color": r, "colorscale": "Viridis",
                                                "colorbar": {"title": "radius"}}))
-        faced = {tuple(sorted(e)) for tri in np.asarray(mat.faces) for e in ((tri[0], tri[1]), (tri[1], tri[2]),
-                                                                             (tri[0], tri[2]))}
-        lone = [e for e in np.asarray(mat.edges) if tuple(sorted(e)) not in faced]
-        if lone:
+        edges = np.asarray(mat.edges, np.int64).reshape(-1, 2)
+        lone = edges[edges_off_polygons(edges, np.asarray(mat.faces))]
+        if len(lone):
             xyz = np.full((3 * len(lone), 3), np.nan)
-            xyz[0::3], xyz[1::3] = v[[e[0] for e in lone]], v[[e[1] for e in lone]]
+            xyz[0::3], xyz[1::3] = v[lone[:, 0]], v[lone[:, 1]]
             traces.append(go.Scatter3d(x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], mode="lines", name="MAT curves",
                                        line={"color": "black", "width": 4}))
     if "points" in arts:
@@ -101,6 +99,8 @@ def _metrics_table(metrics: dict, stem: str) -> str:
             ("vertices", metrics.get("vertices"), None), ("faces", metrics.get("faces"), None)]
     field = metrics.get("field") or {}
     rows += [("sign accuracy", field.get("sign_accuracy"), None), ("mean |grad sdf| inside", field.get("grad_sdf_inside"), None)]
+    from qmdf.bench.models import PAPER  # the paper's Table 3, one copy
+
     paper = PAPER.get(stem)
     paper_of = {"CD": paper[0] * 1e-3, "HD": paper[1] * 1e-3, "chi": paper[2]} if paper else {}
     out = ["<table><tr><th>metric</th><th>this run</th><th>paper (Table 3)</th></tr>"]
