@@ -1,4 +1,5 @@
 """qmdf: medial axis transforms of meshes and point clouds through a neural Quasi-Medial Distance Field."""
+
 from __future__ import annotations
 
 __version__ = "0.1.0"

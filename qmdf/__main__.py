@@ -1,10 +1,11 @@
 """``python -m qmdf``: compose the config with Hydra, validate it, run the pipeline, report.
 
-    python -m qmdf                                  # the default pipeline on the embedded teacup
-    python -m qmdf +experiment=sparse_teacup        # an experiment overlay
-    python -m qmdf input.path=scan.ply              # your own mesh or point cloud
-    python -m qmdf -m sample.n_points=5000,20000    # a sweep (add hydra/launcher=joblib for parallel jobs)
+python -m qmdf                                  # the default pipeline on the embedded teacup
+python -m qmdf +experiment=sparse_teacup        # an experiment overlay
+python -m qmdf input.path=scan.ply              # your own mesh or point cloud
+python -m qmdf -m sample.n_points=5000,20000    # a sweep (add hydra/launcher=joblib for parallel jobs)
 """
+
 from __future__ import annotations
 
 import logging
@@ -53,8 +54,11 @@ def task(cfg) -> dict:
         result = Pipeline(cfg, run_dir, base_dir=Path(hc.runtime.cwd)).run()
     except KeyboardInterrupt:
         code = 128 + (received[-1] if received else signal.SIGINT)
-        log.error("interrupted (%s); the run is marked interrupted in %s", signal.Signals(code - 128).name,
-                  run_dir / "manifest.json")
+        log.error(
+            "interrupted (%s); the run is marked interrupted in %s",
+            signal.Signals(code - 128).name,
+            run_dir / "manifest.json",
+        )
         sys.stderr.flush()
         raise SystemExit(code) from None
     except QmdfError as exc:
@@ -81,7 +85,7 @@ def quote_paths(argv: list[str]) -> list[str]:
     out = []
     for arg in argv:
         key = next((k for k in _PATH_KEYS if arg.startswith(k)), None)
-        value = arg[len(key):] if key else ""
+        value = arg[len(key) :] if key else ""
         if key and value and value[0] not in "'\"" and not _PLAIN_VALUE.fullmatch(value):
             arg = key + "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
         out.append(arg)

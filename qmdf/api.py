@@ -1,12 +1,13 @@
 """The Python API: the same pipeline and configs as the CLI, for scripts and notebooks.
 
-    import qmdf
-    mat = qmdf.medial_axis("bunny.off", overrides=["cover.eps=0.01"])
-    mat.vertices, mat.radii, mat.edges, mat.faces, mat.metrics
+import qmdf
+mat = qmdf.medial_axis("bunny.off", overrides=["cover.eps=0.01"])
+mat.vertices, mat.radii, mat.edges, mat.faces, mat.metrics
 
-    run = qmdf.run(points_array, overrides=["pipeline.stop_after=sample"])
-    run.load("points")
+run = qmdf.run(points_array, overrides=["pipeline.stop_after=sample"])
+run.load("points")
 """
+
 from __future__ import annotations
 
 import logging
@@ -51,8 +52,9 @@ def _stage_input(source: Any, run_dir: Path) -> list[str]:
     if isinstance(source, (str, os.PathLike)):
         return [f"input.path={_quote(os.path.abspath(source))}"]
     if not isinstance(source, np.ndarray) and not (hasattr(source, "vertices") and hasattr(source, "faces")):
-        raise InputError(f"cannot use a {type(source).__name__} as input: pass a path, an (N, 3) array or a "
-                         "trimesh.Trimesh")
+        raise InputError(
+            f"cannot use a {type(source).__name__} as input: pass a path, an (N, 3) array or a trimesh.Trimesh"
+        )
     run_dir.mkdir(parents=True, exist_ok=True)
     if isinstance(source, np.ndarray):
         path = run_dir / "input.npy"
@@ -67,8 +69,12 @@ def _quote(path: str) -> str:
     return "'" + path.replace("\\", "\\\\").replace("'", "\\'") + "'"
 
 
-def run(source: Any = None, overrides: Sequence[str] = (), run_dir: str | os.PathLike | None = None,
-        base_dir: str | os.PathLike | None = None):
+def run(
+    source: Any = None,
+    overrides: Sequence[str] = (),
+    run_dir: str | os.PathLike | None = None,
+    base_dir: str | os.PathLike | None = None,
+):
     """Run the configured pipeline on ``source`` (a path, an (N, 3) array, a trimesh, or None for the
     default shape). Returns the RunResult (run directory, manifest, artifacts)."""
     from qmdf.pipeline import Pipeline
@@ -80,8 +86,11 @@ def run(source: Any = None, overrides: Sequence[str] = (), run_dir: str | os.Pat
     try:
         cfg = compose(list(overrides) + _stage_input(source, out))
         if run_dir is None:  # the caller did not choose: say where the files go
-            log.info("qmdf writes this run to %s and its cache to %s (run_dir= and cache.dir=... choose)", out,
-                     base / cfg.cache.dir if cfg.cache.enabled else "nowhere")
+            log.info(
+                "qmdf writes this run to %s and its cache to %s (run_dir= and cache.dir=... choose)",
+                out,
+                base / cfg.cache.dir if cfg.cache.enabled else "nowhere",
+            )
         out.mkdir(parents=True, exist_ok=True)
         handler = logging.FileHandler(out / "qmdf.log")
         handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] %(message)s"))
@@ -115,20 +124,34 @@ class MedialAxis:
 
     def in_input_units(self) -> "MedialAxis":
         n = self.normalization
-        return MedialAxis(n.to_input(self.vertices), n.length_to_input(self.radii), self.edges, self.faces,
-                          self.metrics, n, self.run_dir)
+        return MedialAxis(
+            n.to_input(self.vertices),
+            n.length_to_input(self.radii),
+            self.edges,
+            self.faces,
+            self.metrics,
+            n,
+            self.run_dir,
+        )
 
 
-def medial_axis(source: Any = None, overrides: Sequence[str] = (), run_dir: str | os.PathLike | None = None) -> MedialAxis:
+def medial_axis(
+    source: Any = None, overrides: Sequence[str] = (), run_dir: str | os.PathLike | None = None
+) -> MedialAxis:
     """The MAT of ``source``: vertices, radii, edges, faces (unit-box frame) and the run's metrics."""
     result = run(source, overrides, run_dir)
     if "mat" not in result.artifacts:
         m = result.manifest
-        why = (f"stages not available in this version: {', '.join(m['unavailable_stages'])}"
-               if m["unavailable_stages"] else f"stages not run: {', '.join(m['not_run']) or 'none'}")
+        why = (
+            f"stages not available in this version: {', '.join(m['unavailable_stages'])}"
+            if m["unavailable_stages"]
+            else f"stages not run: {', '.join(m['not_run']) or 'none'}"
+        )
         raise PipelineError(f"the run made no medial axis ({why}); see {result.run_dir}")
     from qmdf.geometry.ma_format import read_ma
 
     mat = read_ma(result.path("mat"))
     metrics = result.load("metrics") if "metrics" in result.artifacts else {}
-    return MedialAxis(mat.vertices, mat.radii, mat.edges, mat.faces, metrics, result.load("normalization"), result.run_dir)
+    return MedialAxis(
+        mat.vertices, mat.radii, mat.edges, mat.faces, metrics, result.load("normalization"), result.run_dir
+    )

@@ -3,6 +3,7 @@
 A stage declares the artifacts it reads and writes by name and kind; the pipeline checks that wiring before
 anything runs, and keys its cache by the artifacts' content.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -96,16 +97,20 @@ def _load_mesh(path: Path) -> Any:
 
 POINTS = ArtifactKind("points", ".npz", _save_points, _load_points)
 NORMALIZATION = ArtifactKind(
-    "normalization", ".json",
+    "normalization",
+    ".json",
     lambda v, p: p.write_text(json.dumps(v.to_dict(), indent=2) + "\n"),
     lambda p: Normalization.from_dict(json.loads(p.read_text())),
 )
 MESH = ArtifactKind("mesh", ".ply", _save_mesh, _load_mesh)
 JSON = ArtifactKind(
-    "json", ".json",
+    "json",
+    ".json",
     lambda v, p: p.write_text(json.dumps(v, indent=2, default=_json_default) + "\n"),
     lambda p: json.loads(p.read_text()),
 )
+
+
 def _save_mat(value: Any, path: Path) -> None:
     from qmdf.geometry.ma_format import write_ma
 
@@ -131,12 +136,19 @@ def _load_tets(path: Path) -> Any:
 
 #: A tetrahedral mesh as (vertices (V, 3), tets (T, 4))
 TETS = ArtifactKind("tets", ".npz", _save_tets, _load_tets)
+
+
 def _save_grid(value: Any, path: Path) -> None:
     inside = np.asarray(value["inside"], bool)
     with open(path, "wb") as f:
-        np.savez_compressed(f, inside=np.packbits(inside.ravel()), shape=np.array(inside.shape),
-                            lo=np.asarray(value["lo"], np.float64), spacing=np.asarray(value["spacing"], np.float64),
-                            eps=np.float64(value["eps"]))
+        np.savez_compressed(
+            f,
+            inside=np.packbits(inside.ravel()),
+            shape=np.array(inside.shape),
+            lo=np.asarray(value["lo"], np.float64),
+            spacing=np.asarray(value["spacing"], np.float64),
+            eps=np.float64(value["eps"]),
+        )
 
 
 def _load_grid(path: Path) -> Any:
@@ -150,6 +162,8 @@ def _load_grid(path: Path) -> Any:
 GRID = ArtifactKind("grid", ".npz", _save_grid, _load_grid)
 #: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
 MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
+
+
 def _load_field(path: Path) -> Any:
     from qmdf.fields.field import Field
 

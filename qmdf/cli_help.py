@@ -1,5 +1,6 @@
 """``python -m qmdf --help``: how to call it, the config groups, and every setting with its type, default and
 the schema's doc, by key path (Hydra's own help, ``--hydra-help``, dumps the config without the docs)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -42,8 +43,11 @@ def settings_rows() -> list[tuple[str, str, str]]:
 
 
 def config_groups(conf: Path) -> dict[str, list[str]]:
-    return {d.name: sorted(p.stem for p in d.glob("*.yaml")) for d in sorted(conf.iterdir())
-            if d.is_dir() and d.name != "hydra"}
+    return {
+        d.name: sorted(p.stem for p in d.glob("*.yaml"))
+        for d in sorted(conf.iterdir())
+        if d.is_dir() and d.name != "hydra"
+    }
 
 
 def help_text(conf: Path, width: int = 118) -> str:

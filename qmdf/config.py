@@ -4,6 +4,7 @@ The composed config is: the root sections below (``seed``, ``input``, ``pipeline
 section per registered stage, named after the stage (``sample``, ``train``, ``cover``...). The defaults
 come from the dataclasses, so YAML files only hold what an experiment changes.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,8 +22,16 @@ from qmdf.schema import param
 #: The method's stages in order (paper Fig. 4). Planned built-ins that are not registered yet are reported
 #: as "not available in this version" instead of as unknown names.
 BUILTIN_STAGES = (
-    "sample", "train", "feature_detect", "feature_retrain",
-    "cover", "tetrahedralize", "contract", "sheet", "export", "evaluate",
+    "sample",
+    "train",
+    "feature_detect",
+    "feature_retrain",
+    "cover",
+    "tetrahedralize",
+    "contract",
+    "sheet",
+    "export",
+    "evaluate",
 )
 # tetrahedralize is left out by default: measured on the torus, fTetWild took 160 s and the signed tet volume
 # is unbounded below (inverted tets), while the surface volume contracted in 4 s to 1e-8 from the axis.
@@ -33,10 +42,16 @@ INPUT_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".xyz", ".npy")
 
 @dataclass
 class InputConfig:
-    path: Optional[str] = param(None, doc="mesh (obj/off/ply/stl) or point cloud (xyz/ply/npy); relative to the caller's directory")
+    path: Optional[str] = param(
+        None, doc="mesh (obj/off/ply/stl) or point cloud (xyz/ply/npy); relative to the caller's directory"
+    )
     shape: str = param("teacup", doc="procedural shape used when path is null (python -m qmdf.plugins lists them)")
-    shape_resolution: int = param(128, ge=8, le=1024, doc="tessellation/marching-cubes resolution of the procedural shape")
-    kind: str = param("auto", choices=("auto", "mesh", "points"), doc="treat a file as a mesh or as points; auto: by its faces")
+    shape_resolution: int = param(
+        128, ge=8, le=1024, doc="tessellation/marching-cubes resolution of the procedural shape"
+    )
+    kind: str = param(
+        "auto", choices=("auto", "mesh", "points"), doc="treat a file as a mesh or as points; auto: by its faces"
+    )
     min_points: int = param(10, ge=4, doc="fewer points than this are refused")
     max_abs_coordinate: float = param(1e9, gt=0, doc="larger coordinates are refused (rescale the input)")
 
@@ -50,7 +65,9 @@ class InputConfig:
         elif Path(self.path).is_dir():
             problems.append(("path", f"'{self.path}' is a directory; give a mesh or point-cloud file"))
         elif Path(self.path).suffix.lower() not in INPUT_SUFFIXES:
-            problems.append(("path", f"unsupported file type '{Path(self.path).suffix}'; use one of {', '.join(INPUT_SUFFIXES)}"))
+            problems.append(
+                ("path", f"unsupported file type '{Path(self.path).suffix}'; use one of {', '.join(INPUT_SUFFIXES)}")
+            )
         return problems
 
 
@@ -58,8 +75,11 @@ class InputConfig:
 class PipelineConfig:
     stages: list[str] = param(factory=lambda: list(DEFAULT_PIPELINE), doc="stage names, run in order")
     stop_after: Optional[str] = param(None, doc="stop after this stage (e.g. sample), skipping the rest")
-    report: bool = param(True, doc="write report.html (an interactive 3D view, pictures, metrics, stage times, "
-                         "config) into the run folder when the run ends")
+    report: bool = param(
+        True,
+        doc="write report.html (an interactive 3D view, pictures, metrics, stage times, "
+        "config) into the run folder when the run ends",
+    )
 
 
 @dataclass
@@ -107,11 +127,13 @@ def validate(cfg: DictConfig | dict, base_dir: Path | None = None) -> list[Probl
         if key in BUILTIN_STAGES:
             continue  # a planned stage's section, harmless while the stage is not available
         hint = schema._suggest(str(key), list(ROOT_KEYS) + STAGES.names())
-        problems.append(Problem(
-            str(key),
-            f"unknown top-level key{hint}; the root keys are {', '.join(ROOT_KEYS)} and one section per stage "
-            f"({', '.join(STAGES.names())})",
-        ))
+        problems.append(
+            Problem(
+                str(key),
+                f"unknown top-level key{hint}; the root keys are {', '.join(ROOT_KEYS)} and one section per stage "
+                f"({', '.join(STAGES.names())})",
+            )
+        )
     root = {k: cfg[k] for k in ROOT_KEYS if k in cfg}
     problems += schema.check_section(RootConfig, root, "")
     for entry in STAGES.entries():

@@ -1,4 +1,5 @@
 """Errors a user can cause. They end a run with one clear message and a non-zero exit, never a traceback."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

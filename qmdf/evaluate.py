@@ -4,6 +4,7 @@ The same code scores our runs (the ``evaluate`` stage) and other methods' ``.ma`
 Both are normalised into the reference's unit box (longest bounding-box side 1, as in the paper) unless
 ``--no-normalize`` says they already are.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,9 +21,18 @@ from qmdf.geometry.ma_format import MedialMesh
 from qmdf.geometry.normalize import Normalization
 
 
-def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray | None, samples: int = 100_000,
-              resolution: int = 128, seed: int = 0, picture: Path | None = None, return_mesh: bool = False,
-              fold_deg: float = 150.0, recon_mesh=None):
+def score_mat(
+    mat: MedialMesh,
+    ref_vertices: np.ndarray,
+    ref_faces: np.ndarray | None,
+    samples: int = 100_000,
+    resolution: int = 128,
+    seed: int = 0,
+    picture: Path | None = None,
+    return_mesh: bool = False,
+    fold_deg: float = 150.0,
+    recon_mesh=None,
+):
     """Every metric of ``mat`` against the reference (a mesh, or points when ``ref_faces`` is None), both
     already in the same (unit-box) frame. With ``return_mesh``, also the meshed reconstruction."""
     from qmdf.geometry.envelope import EnvelopeUnion
@@ -33,31 +43,45 @@ def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray |
         raise QmdfError("the MAT has negative or non-finite radii or coordinates")
     t0 = time.perf_counter()
     union = EnvelopeUnion.from_mat(mat)
-    dist, recon, _, _ = M.reconstruction_distances(union, ref_vertices, ref_faces, samples,
-                                                   np.random.default_rng(seed), resolution, recon_mesh=recon_mesh)
+    dist, recon, _, _ = M.reconstruction_distances(
+        union, ref_vertices, ref_faces, samples, np.random.default_rng(seed), resolution, recon_mesh=recon_mesh
+    )
     # A single-layer MAT's boundary is its one-face edges; our closed double-covering membrane has none,
     # and its boundary is where it folds back on itself (dihedral angle near 2*pi, paper Sec. 4.3).
     boundary = M.single_face_edges(mat.faces)
     boundary_rule = "edges of one face"
     if len(mat.faces) and not len(boundary):
-        boundary, boundary_rule = M.fold_edges(mat.vertices, mat.faces, fold_deg), f"fold edges (normals turn > {fold_deg} deg)"
+        boundary, boundary_rule = (
+            M.fold_edges(mat.vertices, mat.faces, fold_deg),
+            f"fold edges (normals turn > {fold_deg} deg)",
+        )
     closed = len(mat.faces) > 0 and M.is_closed_surface(mat.faces)
     if closed:  # our membrane: it bounds a (flat) solid whose chi, V - E + F - C, is half its surface's
-        chi, chi_rule = M.euler_surface(len(np.unique(mat.faces)), mat.faces) // 2, "(V - E + F) / 2 of the closed membrane = chi of the solid it bounds"
+        chi, chi_rule = (
+            M.euler_surface(len(np.unique(mat.faces)), mat.faces) // 2,
+            "(V - E + F) / 2 of the closed membrane = chi of the solid it bounds",
+        )
     else:
         chi, chi_rule = M.euler_medial_mesh(len(mat.vertices), mat.edges, mat.faces), "V - E + F of the medial mesh"
     out = {
-        "chamfer": dist["chamfer"], "hausdorff": dist["hausdorff"],
-        "chi": chi, "chi_rule": chi_rule,
+        "chamfer": dist["chamfer"],
+        "hausdorff": dist["hausdorff"],
+        "chi": chi,
+        "chi_rule": chi_rule,
         "boundary_smoothness": M.boundary_smoothness(mat.vertices, boundary) if len(boundary) else None,
-        "boundary_rule": boundary_rule, "boundary_edges": int(len(boundary)),
-        "vertices": int(len(mat.vertices)), "edges": int(len(M.medial_edges(mat.edges, mat.faces))),
+        "boundary_rule": boundary_rule,
+        "boundary_edges": int(len(boundary)),
+        "vertices": int(len(mat.vertices)),
+        "edges": int(len(M.medial_edges(mat.edges, mat.faces))),
         "faces": int(len(mat.faces)),
         "radius": M.radius_stats(mat.radii),
         "distances": {k: v for k, v in dist.items() if k not in ("chamfer", "hausdorff", "definition")},
-        "reconstruction": {"vertices": int(len(recon.vertices)), "faces": int(len(recon.faces)),
-                           "genus": int((2 - recon.euler_number) // 2) if recon.is_watertight else None,
-                           "resolution": resolution},
+        "reconstruction": {
+            "vertices": int(len(recon.vertices)),
+            "faces": int(len(recon.faces)),
+            "genus": int((2 - recon.euler_number) // 2) if recon.is_watertight else None,
+            "resolution": resolution,
+        },
         "definition": dist["definition"],
         "seconds": round(time.perf_counter() - t0, 2),
     }
@@ -70,8 +94,15 @@ def score_mat(mat: MedialMesh, ref_vertices: np.ndarray, ref_faces: np.ndarray |
             d = cKDTree(ref_vertices).query(recon.vertices)[0]
         else:
             d = M.point_to_mesh_distance(recon.vertices, ref_vertices, ref_faces)
-        render_mesh(picture, recon.vertices, recon.faces, d, title="reconstruction from the MAT",
-                    label="distance to the reference (unit box)", cmap="magma")
+        render_mesh(
+            picture,
+            recon.vertices,
+            recon.faces,
+            d,
+            title="reconstruction from the MAT",
+            label="distance to the reference (unit box)",
+            cmap="magma",
+        )
     return (out, recon) if return_mesh else out
 
 
@@ -98,7 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write the metrics here")
     ap.add_argument("--picture", type=Path, help="PNG of the reconstruction coloured by its distance to the reference")
     ap.add_argument("--samples", type=int, default=100_000, help="samples per surface (default 100000)")
-    ap.add_argument("--resolution", type=int, default=128, help="grid resolution of the meshed reconstruction (sampling and pictures)")
+    ap.add_argument(
+        "--resolution",
+        type=int,
+        default=128,
+        help="grid resolution of the meshed reconstruction (sampling and pictures)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-normalize", action="store_true", help="the inputs are already in the unit box")
     args = ap.parse_args(argv)
@@ -107,8 +143,9 @@ def main(argv: list[str] | None = None) -> int:
         ref = load_geometry(args.reference, kind="mesh")
         norm = Normalization.identity() if args.no_normalize else Normalization.fit(ref.points.points)
         mat = MedialMesh(norm.to_unit(mat.vertices), mat.radii * norm.scale, mat.edges, mat.faces)
-        metrics = score_mat(mat, norm.to_unit(ref.points.points), ref.faces, args.samples, args.resolution,
-                            args.seed, args.picture)
+        metrics = score_mat(
+            mat, norm.to_unit(ref.points.points), ref.faces, args.samples, args.resolution, args.seed, args.picture
+        )
     except (QmdfError, ValueError) as exc:
         print(f"qmdf.evaluate: error: {exc}", file=sys.stderr)
         return 2

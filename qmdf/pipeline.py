@@ -9,6 +9,7 @@ the other config sections it depends on, and the content digests of its input ar
 multirun job that only changes a downstream stage, copies the upstream results from ``cache.dir`` instead of
 recomputing them. Parallel jobs computing the same key wait on a file lock rather than duplicate the work.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -68,7 +69,7 @@ def make_plan(cfg: DictConfig | dict) -> Plan:
         steps.append(Step(i, name, entry.obj(), config_mod.typed_section(cfg, name)))
         if name == stop_after:
             break
-    not_run = names[len(steps):]
+    not_run = names[len(steps) :]
     check_wiring(steps)
     return Plan(steps, unavailable, not_run)
 
@@ -83,7 +84,9 @@ def check_wiring(steps: list[Step]) -> None:
             if name not in made:
                 makers = [e.name for e in STAGES.entries() if name in e.obj.outputs or name in e.obj.optional_outputs]
                 hint = f" (made by: {', '.join(makers)})" if makers else ""
-                problems.append(f"stage '{step.name}' (#{step.index}) reads '{name}', which no earlier stage makes{hint}")
+                problems.append(
+                    f"stage '{step.name}' (#{step.index}) reads '{name}', which no earlier stage makes{hint}"
+                )
             elif made[name][0] is not kind:
                 problems.append(
                     f"stage '{step.name}' reads '{name}' as {kind.name}, but '{made[name][1]}' makes it as {made[name][0].name}"
@@ -118,8 +121,11 @@ class RunResult:
         if not path.is_file():
             raise PipelineError(f"{run_dir} has no manifest.json: not a run folder")
         manifest = json.loads(path.read_text())
-        artifacts = {name: ArtifactRecord(name, a["kind"], run_dir / a["path"], a.get("sha256", ""), st["name"])
-                     for st in manifest.get("stages", []) for name, a in (st.get("artifacts") or {}).items()}
+        artifacts = {
+            name: ArtifactRecord(name, a["kind"], run_dir / a["path"], a.get("sha256", ""), st["name"])
+            for st in manifest.get("stages", [])
+            for name, a in (st.get("artifacts") or {}).items()
+        }
         return cls(run_dir, manifest, artifacts)
 
     @property
@@ -142,8 +148,10 @@ class RunResult:
         else:  # an opened run, its stages not imported: the built-in kind by the name the manifest gives
             kind = kind_named(rec.kind)
             if kind is None:
-                raise PipelineError(f"artifact '{name}' is of kind '{rec.kind}', which only its stage "
-                                    f"'{rec.producer}' can read: import it first")
+                raise PipelineError(
+                    f"artifact '{name}' is of kind '{rec.kind}', which only its stage "
+                    f"'{rec.producer}' can read: import it first"
+                )
         return kind.load(rec.path) if kind.load else rec.path
 
 
@@ -182,15 +190,27 @@ def abandoned_run(run_dir: Path) -> dict | None:
         old = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    if old.get("status") != "running" or old.get("host") != socket.gethostname() or not old.get("pid") \
-            or _alive(int(old["pid"])):
+    if (
+        old.get("status") != "running"
+        or old.get("host") != socket.gethostname()
+        or not old.get("pid")
+        or _alive(int(old["pid"]))
+    ):
         return None
     for partial in run_dir.glob(".*.partial"):
         shutil.rmtree(partial, ignore_errors=True)
-    log.warning("the previous run in %s was abandoned (process %s, started %s, is gone); its partial stage folders "
-                "are removed", run_dir, old["pid"], old.get("started"))
-    return {"status": "abandoned", "pid": old["pid"], "started": old.get("started"),
-            "stages_done": [s["name"] for s in old.get("stages", [])]}
+    log.warning(
+        "the previous run in %s was abandoned (process %s, started %s, is gone); its partial stage folders are removed",
+        run_dir,
+        old["pid"],
+        old.get("started"),
+    )
+    return {
+        "status": "abandoned",
+        "pid": old["pid"],
+        "started": old.get("started"),
+        "stages_done": [s["name"] for s in old.get("stages", [])],
+    }
 
 
 class Pipeline:
@@ -245,7 +265,8 @@ class Pipeline:
             "qmdf_version": __version__,
             "run_dir": str(self.run_dir),
             "started": dt.datetime.now().isoformat(timespec="microseconds"),
-            "pid": os.getpid(), "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
             "status": "running",
             "pipeline": list(self.cfg["pipeline"]["stages"]),
             "unavailable_stages": plan.unavailable,
@@ -257,7 +278,9 @@ class Pipeline:
         if plan.unavailable:
             log.warning(
                 "stages not available in qmdf %s: %s. Running only: %s",
-                __version__, ", ".join(plan.unavailable), ", ".join(s.name for s in plan.steps) or "nothing",
+                __version__,
+                ", ".join(plan.unavailable),
+                ", ".join(s.name for s in plan.steps) or "nothing",
             )
         self._write_manifest(manifest)
         result = RunResult(self.run_dir, manifest)
@@ -300,8 +323,12 @@ class Pipeline:
         if final_dir.exists():
             shutil.rmtree(final_dir)
         ctx = StageContext(
-            stage=st, cfg=step.cfg, settings=self.settings, stage_dir=final_dir,
-            input_paths={k: v.path for k, v in inputs.items()}, log=logging.getLogger(f"qmdf.stage.{step.name}"),
+            stage=st,
+            cfg=step.cfg,
+            settings=self.settings,
+            stage_dir=final_dir,
+            input_paths={k: v.path for k, v in inputs.items()},
+            log=logging.getLogger(f"qmdf.stage.{step.name}"),
             sections={k: config_mod.typed_section(self.cfg, k) for k in st.config_deps if k in STAGES},
         )
         key = self.stage_key(step, inputs, ctx)
@@ -329,9 +356,15 @@ class Pipeline:
             shutil.rmtree(ctx.work_dir, ignore_errors=True)
         seconds = time.perf_counter() - t0
         record = {
-            "index": step.index, "name": step.name, "status": status, "key": key,
-            "seconds": round(seconds, 3), "cpu_seconds": round(time.process_time() - cpu0, 3),  # all threads
-            "peak_rss_mb": peak_rss_mb(), "dir": step.dirname, "artifacts": {},
+            "index": step.index,
+            "name": step.name,
+            "status": status,
+            "key": key,
+            "seconds": round(seconds, 3),
+            "cpu_seconds": round(time.process_time() - cpu0, 3),  # all threads
+            "peak_rss_mb": peak_rss_mb(),
+            "dir": step.dirname,
+            "artifacts": {},
         }
         for name, rel in written.items():
             path = final_dir / rel
@@ -339,7 +372,10 @@ class Pipeline:
             digest = file_digest(path)
             produced[name] = ArtifactRecord(name, kind.name, path, digest, step.name)
             record["artifacts"][name] = {
-                "path": f"{step.dirname}/{rel}", "kind": kind.name, "sha256": digest, "bytes": path.stat().st_size,
+                "path": f"{step.dirname}/{rel}",
+                "kind": kind.name,
+                "sha256": digest,
+                "bytes": path.stat().st_size,
             }
         if (final_dir / "notes.json").exists():
             record["notes"] = json.loads((final_dir / "notes.json").read_text())

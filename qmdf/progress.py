@@ -1,5 +1,6 @@
 """Progress a log can show: at most one line every ``every`` seconds with how far a loop is and the time left, so
 a run piped to a file or started by ``make run`` never looks hung, and nothing floods."""
+
 from __future__ import annotations
 
 import time

@@ -9,6 +9,7 @@ The entry point may name the object itself or a module whose decorators register
 import is recorded with its real error and traceback, and reported by name when something asks for it;
 it never hides behind a generic "not found".
 """
+
 from __future__ import annotations
 
 import contextvars
@@ -71,9 +72,7 @@ class Registry:
         origin = origin or _origin.get() or f"{getattr(obj, '__module__', '?')} (built-in)"
         old = self._entries.get(name)
         if old is not None and old.obj is not obj:
-            raise PipelineError(
-                f"{self.kind} '{name}' is registered twice: by {old.origin} and by {origin}"
-            )
+            raise PipelineError(f"{self.kind} '{name}' is registered twice: by {old.origin} and by {origin}")
         self._entries[name] = Entry(name, obj, origin, config, _first_doc_line(obj))
         return obj
 

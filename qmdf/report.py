@@ -4,6 +4,7 @@ covering before and after contraction, the reconstruction and the feature points
 curves; the metrics beside the paper's figures; the stage times and the composed config. Meshes are decimated for
 display only (``DISPLAY_FACES``); the data files keep every face. ``python -m qmdf.report RUN_DIR`` writes it
 again for any finished run; a sweep gets one page linking its jobs' reports (``sweep_report``)."""
+
 from __future__ import annotations
 
 import base64
@@ -15,7 +16,6 @@ import numpy as np
 #: faces per mesh and points per cloud drawn in the 3D view (the page stays a few MB)
 DISPLAY_FACES = 12_000
 DISPLAY_POINTS = 10_000
-
 
 
 def _display_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -34,8 +34,20 @@ def _short(a: np.ndarray, digits: int = 4) -> np.ndarray:
 
 
 def _mesh_trace(go, v, f, name, color, opacity, visible):
-    return go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name=name, color=color,
-                     opacity=opacity, showlegend=True, visible=visible, flatshading=True)
+    return go.Mesh3d(
+        x=v[:, 0],
+        y=v[:, 1],
+        z=v[:, 2],
+        i=f[:, 0],
+        j=f[:, 1],
+        k=f[:, 2],
+        name=name,
+        color=color,
+        opacity=opacity,
+        showlegend=True,
+        visible=visible,
+        flatshading=True,
+    )
 
 
 def figure(run):
@@ -51,40 +63,93 @@ def figure(run):
         v, r = _short(mat.vertices), _short(mat.radii, 5)
         if len(mat.faces):
             f = np.asarray(mat.faces)
-            traces.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], intensity=r,
-                                    colorscale="Viridis", colorbar={"title": "radius"}, name="MAT (by radius)",
-                                    showlegend=True, flatshading=True))
+            traces.append(
+                go.Mesh3d(
+                    x=v[:, 0],
+                    y=v[:, 1],
+                    z=v[:, 2],
+                    i=f[:, 0],
+                    j=f[:, 1],
+                    k=f[:, 2],
+                    intensity=r,
+                    colorscale="Viridis",
+                    colorbar={"title": "radius"},
+                    name="MAT (by radius)",
+                    showlegend=True,
+                    flatshading=True,
+                )
+            )
         else:  # a MAT of curves only (a torus's circle): its vertices, coloured the same way
-            traces.append(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers", name="MAT (by radius)",
-                                       marker={"size": 3, "color": r, "colorscale": "Viridis",
-                                               "colorbar": {"title": "radius"}}))
+            traces.append(
+                go.Scatter3d(
+                    x=v[:, 0],
+                    y=v[:, 1],
+                    z=v[:, 2],
+                    mode="markers",
+                    name="MAT (by radius)",
+                    marker={"size": 3, "color": r, "colorscale": "Viridis", "colorbar": {"title": "radius"}},
+                )
+            )
         edges = np.asarray(mat.edges, np.int64).reshape(-1, 2)
         lone = edges[edges_off_polygons(edges, np.asarray(mat.faces))]
         if len(lone):
             xyz = np.full((3 * len(lone), 3), np.nan)
             xyz[0::3], xyz[1::3] = v[lone[:, 0]], v[lone[:, 1]]
-            traces.append(go.Scatter3d(x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], mode="lines", name="MAT curves",
-                                       line={"color": "black", "width": 4}))
+            traces.append(
+                go.Scatter3d(
+                    x=xyz[:, 0],
+                    y=xyz[:, 1],
+                    z=xyz[:, 2],
+                    mode="lines",
+                    name="MAT curves",
+                    line={"color": "black", "width": 4},
+                )
+            )
     if "points" in arts:
         p = run.load("points").points
         if len(p) > DISPLAY_POINTS:
             p = p[np.random.default_rng(0).choice(len(p), DISPLAY_POINTS, replace=False)]
         p = _short(p)
-        traces.append(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", name="input points",
-                                   marker={"size": 1.5, "color": "grey"}, visible="legendonly"))
-    for name, label, color, opacity in (("covering", "covering (before contraction)", "orange", 0.3),
-                                        ("membrane", "covering after contraction", "red", 0.5),
-                                        ("reconstruction", "reconstruction", "lightblue", 0.35)):
+        traces.append(
+            go.Scatter3d(
+                x=p[:, 0],
+                y=p[:, 1],
+                z=p[:, 2],
+                mode="markers",
+                name="input points",
+                marker={"size": 1.5, "color": "grey"},
+                visible="legendonly",
+            )
+        )
+    for name, label, color, opacity in (
+        ("covering", "covering (before contraction)", "orange", 0.3),
+        ("membrane", "covering after contraction", "red", 0.5),
+        ("reconstruction", "reconstruction", "lightblue", 0.35),
+    ):
         if name in arts:
             v, f = _display_mesh(run.load(name))
             traces.append(_mesh_trace(go, v, f, label, color, opacity, "legendonly"))
     if "feature_points" in arts:
         p = _short(run.load("feature_points").points)
-        traces.append(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", name="feature points",
-                                   marker={"size": 3, "color": "magenta"}, visible="legendonly"))
+        traces.append(
+            go.Scatter3d(
+                x=p[:, 0],
+                y=p[:, 1],
+                z=p[:, 2],
+                mode="markers",
+                name="feature points",
+                marker={"size": 3, "color": "magenta"},
+                visible="legendonly",
+            )
+        )
     fig = go.Figure(traces)
-    fig.update_layout(scene={"aspectmode": "data"}, height=700, margin={"l": 0, "r": 0, "t": 30, "b": 0},
-                      legend={"itemclick": "toggle"}, title="click the legend to show or hide each layer")
+    fig.update_layout(
+        scene={"aspectmode": "data"},
+        height=700,
+        margin={"l": 0, "r": 0, "t": 30, "b": 0},
+        legend={"itemclick": "toggle"},
+        title="click the legend to show or hide each layer",
+    )
     return fig
 
 
@@ -94,11 +159,19 @@ def _image(path: Path) -> str:
 
 
 def _metrics_table(metrics: dict, stem: str) -> str:
-    rows = [("CD", metrics.get("chamfer"), 1e-3), ("HD", metrics.get("hausdorff"), 1e-3), ("chi", metrics.get("chi"), None),
-            ("boundary smoothness C_avg", metrics.get("boundary_smoothness"), None),
-            ("vertices", metrics.get("vertices"), None), ("faces", metrics.get("faces"), None)]
+    rows = [
+        ("CD", metrics.get("chamfer"), 1e-3),
+        ("HD", metrics.get("hausdorff"), 1e-3),
+        ("chi", metrics.get("chi"), None),
+        ("boundary smoothness C_avg", metrics.get("boundary_smoothness"), None),
+        ("vertices", metrics.get("vertices"), None),
+        ("faces", metrics.get("faces"), None),
+    ]
     field = metrics.get("field") or {}
-    rows += [("sign accuracy", field.get("sign_accuracy"), None), ("mean |grad sdf| inside", field.get("grad_sdf_inside"), None)]
+    rows += [
+        ("sign accuracy", field.get("sign_accuracy"), None),
+        ("mean |grad sdf| inside", field.get("grad_sdf_inside"), None),
+    ]
     from qmdf.bench.models import PAPER  # the paper's Table 3, one copy
 
     paper = PAPER.get(stem)
@@ -118,8 +191,10 @@ def _metrics_table(metrics: dict, stem: str) -> str:
 def _stage_table(manifest: dict) -> str:
     out = ["<table><tr><th>stage</th><th>status</th><th>wall s</th><th>CPU s</th><th>peak MB</th></tr>"]
     for s in manifest.get("stages", []):
-        out.append(f"<tr><td>{s['name']}</td><td>{s['status']}</td><td>{s['seconds']:.1f}</td>"
-                   f"<td>{s.get('cpu_seconds', '')}</td><td>{s.get('peak_rss_mb') or ''}</td></tr>")
+        out.append(
+            f"<tr><td>{s['name']}</td><td>{s['status']}</td><td>{s['seconds']:.1f}</td>"
+            f"<td>{s.get('cpu_seconds', '')}</td><td>{s.get('peak_rss_mb') or ''}</td></tr>"
+        )
     out.append("</table>")
     return "\n".join(out)
 
@@ -135,9 +210,12 @@ def write_report(run_dir: Path | str) -> Path:
     run_dir = Path(run_dir)
     run = RunResult.open(run_dir)
     m = run.manifest
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>qmdf run {html.escape(run_dir.name)}</title>"
-             f"<style>{STYLE}</style></head><body>", f"<h1>qmdf run {html.escape(str(run_dir))}</h1>",
-             f"<p>status: <b>{html.escape(str(m.get('status')))}</b>{' (' + html.escape(str(m.get('error'))) + ')' if m.get('error') else ''}</p>"]
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>qmdf run {html.escape(run_dir.name)}</title>"
+        f"<style>{STYLE}</style></head><body>",
+        f"<h1>qmdf run {html.escape(str(run_dir))}</h1>",
+        f"<p>status: <b>{html.escape(str(m.get('status')))}</b>{' (' + html.escape(str(m.get('error'))) + ')' if m.get('error') else ''}</p>",
+    ]
     parts.append(figure(run).to_html(full_html=False, include_plotlyjs=True, div_id="mat-view"))
     config_path = run_dir / "config.yaml"
     stem = ""
@@ -149,8 +227,12 @@ def write_report(run_dir: Path | str) -> Path:
         stem = Path(path).stem if path else (cfg.get("input") or {}).get("shape", "")
     if "metrics" in run.artifacts:
         parts += ["<h2>Metrics</h2>", _metrics_table(run.load("metrics"), stem)]
-    for title, name in (("Field slices (sdf, mf, q)", "slices.png"), ("Loss curves", "losses.png"),
-                        ("MAT", "mat.png"), ("Reconstruction", "reconstruction.png")):
+    for title, name in (
+        ("Field slices (sdf, mf, q)", "slices.png"),
+        ("Loss curves", "losses.png"),
+        ("MAT", "mat.png"),
+        ("Reconstruction", "reconstruction.png"),
+    ):
         found = sorted(run_dir.glob(f"*/{name}"))
         if found:
             parts += [f"<h2>{title}</h2>", _image(found[-1])]
@@ -169,17 +251,26 @@ def sweep_report(sweep_dir: Path | str, rows: list[dict]) -> Path:
     """``sweep_dir/report.html``: the jobs' table (overrides, status, figures), each linking to its own report."""
     sweep_dir = Path(sweep_dir)
     keys = [k for k in ("chamfer", "hausdorff", "chi", "vertices") if any(k in r for r in rows)]
-    out = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>qmdf sweep</title><style>{STYLE}</style></head>"
-           f"<body><h1>qmdf sweep {html.escape(str(sweep_dir))}</h1><table><tr><th>job</th><th>overrides</th>"
-           "<th>status</th>" + "".join(f"<th>{k}</th>" for k in keys) + "</tr>"]
+    out = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>qmdf sweep</title><style>{STYLE}</style></head>"
+        f"<body><h1>qmdf sweep {html.escape(str(sweep_dir))}</h1><table><tr><th>job</th><th>overrides</th>"
+        "<th>status</th>" + "".join(f"<th>{k}</th>" for k in keys) + "</tr>"
+    ]
     for r in rows:
         job = str(r.get("job", ""))
-        link = f'<a href="{html.escape(job)}/report.html">{html.escape(job)}</a>' \
-            if (sweep_dir / job / "report.html").exists() else html.escape(job)
-        cells = "".join(f"<td>{r[k]:.4g}</td>" if isinstance(r.get(k), float) else f"<td>{html.escape(str(r.get(k, '')))}</td>"
-                        for k in keys)
-        out.append(f"<tr><td>{link}</td><td>{html.escape(str(r.get('overrides', '')))}</td>"
-                   f"<td>{html.escape(str(r.get('status', '')))}</td>{cells}</tr>")
+        link = (
+            f'<a href="{html.escape(job)}/report.html">{html.escape(job)}</a>'
+            if (sweep_dir / job / "report.html").exists()
+            else html.escape(job)
+        )
+        cells = "".join(
+            f"<td>{r[k]:.4g}</td>" if isinstance(r.get(k), float) else f"<td>{html.escape(str(r.get(k, '')))}</td>"
+            for k in keys
+        )
+        out.append(
+            f"<tr><td>{link}</td><td>{html.escape(str(r.get('overrides', '')))}</td>"
+            f"<td>{html.escape(str(r.get('status', '')))}</td>{cells}</tr>"
+        )
     out.append("</table></body></html>")
     path = sweep_dir / "report.html"
     path.write_text("\n".join(out))
@@ -205,4 +296,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
-

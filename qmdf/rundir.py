@@ -1,4 +1,5 @@
 """Unique run-directory names: date / time to the microsecond plus a random tag (parallel runs never collide)."""
+
 from __future__ import annotations
 
 import datetime as dt

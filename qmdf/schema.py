@@ -4,6 +4,7 @@ Hydra (through OmegaConf) stops at the first bad value. A user fixing a sweep wa
 once, so each section of the composed config is checked here against its dataclass: unknown keys (with a
 suggestion), wrong types, values out of bounds, and the section's own cross-field ``check``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -65,7 +66,7 @@ def _join(path: str, key: Any) -> str:
 
 def _field_of(key: str, path: str) -> str:
     """The field of section ``path`` that problem key ``key`` is about (``a.b[0].c`` -> ``b`` for ``a``)."""
-    rest = key[len(path) + 1:] if path else key
+    rest = key[len(path) + 1 :] if path else key
     return re.split(r"[.\[]", rest)[0]
 
 
@@ -199,9 +200,7 @@ def _build_value(tp: Any, value: Any) -> Any:
 def build(schema: type, node: Any) -> Any:
     """A ``schema`` instance from a checked node (missing keys take the schema's defaults)."""
     hints = typing.get_type_hints(schema)
-    kwargs = {
-        f.name: _build_value(hints[f.name], node[f.name]) for f in dataclasses.fields(schema) if f.name in node
-    }
+    kwargs = {f.name: _build_value(hints[f.name], node[f.name]) for f in dataclasses.fields(schema) if f.name in node}
     return schema(**kwargs)
 
 
@@ -210,8 +209,10 @@ def describe(schema: type) -> list[tuple[str, str, Any, str]]:
     hints = typing.get_type_hints(schema)
     rows = []
     for f in dataclasses.fields(schema):
-        default = f.default if f.default is not _MISSING else (
-            f.default_factory() if f.default_factory is not _MISSING else None
+        default = (
+            f.default
+            if f.default is not _MISSING
+            else (f.default_factory() if f.default_factory is not _MISSING else None)
         )
         rows.append((f.name, _type_name(hints[f.name]), default, f.metadata.get("doc", "")))
     return rows

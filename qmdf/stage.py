@@ -16,6 +16,7 @@ Write one like this (third-party packages expose it through the ``qmdf.stages`` 
             pts = ctx.load("points")
             ctx.save("smoothed", my_smoothing(pts, ctx.cfg.iterations))
 """
+
 from __future__ import annotations
 
 import logging

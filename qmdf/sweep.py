@@ -4,6 +4,7 @@ job linked to its own report) in the sweep dir.
 Runs at the end of every multirun (a Hydra callback, see conf/config.yaml), and by hand:
 ``python -m qmdf.sweep runs/multirun/DATE/TIME``.
 """
+
 from __future__ import annotations
 
 import csv
@@ -17,7 +18,9 @@ SCALARS = ("chamfer", "hausdorff", "chi", "boundary_smoothness", "vertices", "fa
 
 def collect(sweep_dir: Path) -> list[dict[str, Any]]:
     rows = []
-    for manifest_path in sorted(Path(sweep_dir).glob("*/manifest.json"), key=lambda p: (len(p.parent.name), p.parent.name)):
+    for manifest_path in sorted(
+        Path(sweep_dir).glob("*/manifest.json"), key=lambda p: (len(p.parent.name), p.parent.name)
+    ):
         job = manifest_path.parent
         m = json.loads(manifest_path.read_text())
         overrides_file = job / ".hydra" / "overrides.yaml"
@@ -26,8 +29,14 @@ def collect(sweep_dir: Path) -> list[dict[str, Any]]:
             overrides = [ln[2:].strip() for ln in overrides_file.read_text().splitlines() if ln.startswith("- ")]
         row: dict[str, Any] = {"job": job.name, "overrides": overrides, "status": m.get("status")}
         row["seconds"] = round(sum(s.get("seconds", 0) for s in m.get("stages", [])), 2)
-        metrics_rel = next((s["artifacts"]["metrics"]["path"] for s in reversed(m.get("stages", []))
-                            if "metrics" in s.get("artifacts", {})), None)
+        metrics_rel = next(
+            (
+                s["artifacts"]["metrics"]["path"]
+                for s in reversed(m.get("stages", []))
+                if "metrics" in s.get("artifacts", {})
+            ),
+            None,
+        )
         if metrics_rel:
             metrics = json.loads((job / metrics_rel).read_text())
             row.update({k: metrics.get(k) for k in SCALARS})

@@ -1,4 +1,5 @@
 """Pictures of what a run made, drawn with matplotlib (no display needed)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -26,10 +27,18 @@ def _decimated(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | Non
     return v, f, values
 
 
-def render_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | None = None,
-                title: str = "", label: str = "", cmap: str = "viridis", max_faces: int = 30000,
-                views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)),
-                lines: tuple[tuple[np.ndarray, str], ...] = ()) -> Path:
+def render_mesh(
+    path: Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    values: np.ndarray | None = None,
+    title: str = "",
+    label: str = "",
+    cmap: str = "viridis",
+    max_faces: int = 30000,
+    views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)),
+    lines: tuple[tuple[np.ndarray, str], ...] = (),
+) -> Path:
     """Shaded views of a triangle mesh, coloured by per-vertex ``values`` when given; ``lines``: (edges (E, 2)
     into ``vertices``, colour) drawn over it (a medial mesh's lone edges, its seams)."""
     import matplotlib
@@ -86,8 +95,11 @@ def plot_field_slices(path: Path, field, resolution: int = 160, extent: float = 
     a, b = np.meshgrid(t, t, indexing="xy")
     fig, axes = plt.subplots(2, 3, figsize=(13, 8.5))
     for row, (plane, labels) in enumerate((("z", ("x", "y")), ("y", ("x", "z")))):
-        pts = np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)]) if plane == "z" else \
-            np.column_stack([a.ravel(), np.zeros(a.size), b.ravel()])
+        pts = (
+            np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)])
+            if plane == "z"
+            else np.column_stack([a.ravel(), np.zeros(a.size), b.ravel()])
+        )
         vals = field.evaluate(pts)
         sdf = vals["sdf"].reshape(a.shape)
         for col, (name, cmap) in enumerate((("sdf", "RdBu_r"), ("mf", "viridis"), ("q", "magma"))):
@@ -95,7 +107,9 @@ def plot_field_slices(path: Path, field, resolution: int = 160, extent: float = 
             ax = axes[row, col]
             if name == "sdf":
                 lim = float(np.abs(v).max())
-                im = ax.imshow(v, origin="lower", extent=(-extent, extent, -extent, extent), cmap=cmap, vmin=-lim, vmax=lim)
+                im = ax.imshow(
+                    v, origin="lower", extent=(-extent, extent, -extent, extent), cmap=cmap, vmin=-lim, vmax=lim
+                )
             else:
                 shown = np.where(sdf < 0, v, np.nan)  # the inner fields are what the method uses
                 im = ax.imshow(shown, origin="lower", extent=(-extent, extent, -extent, extent), cmap=cmap)
@@ -135,8 +149,14 @@ def plot_losses(path: Path, history: list[dict]) -> Path:
     return Path(path)
 
 
-def plot_points_over(path: Path, background: np.ndarray, highlight: np.ndarray, title: str = "",
-                     views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)), max_background: int = 8000) -> Path:
+def plot_points_over(
+    path: Path,
+    background: np.ndarray,
+    highlight: np.ndarray,
+    title: str = "",
+    views: tuple[tuple[float, float], ...] = ((20, -60), (20, 120)),
+    max_background: int = 8000,
+) -> Path:
     """``highlight`` points (red) over a thinned, faint ``background`` point cloud."""
     import matplotlib
 

@@ -1,4 +1,5 @@
 """Shared fixtures: tiny shapes, an isolated cache, and a helper to run the real CLI in a subprocess."""
+
 from __future__ import annotations
 
 import json
@@ -13,18 +14,34 @@ REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data"
 
 #: Overrides that keep every CLI run in the tests small and fast.
-FAST = ["input.shape_resolution=32", "sample.n_points=2000", "train.steps=3", "train.surface_batch=256",
-        "train.volume_batch=256", "train.backbone=mlp", "train.backbones.mlp.width=32", "train.volume_samples=5000",
-        "train.picture=false", "cover.resolution=32",
-        "cover.eps=0.05", "contract.iterations=5", "export.reconstruction_resolution=24", "export.picture=false",
-        "evaluate.samples=500", "evaluate.resolution=24", "evaluate.picture=false", "pipeline.report=false"]
+FAST = [
+    "input.shape_resolution=32",
+    "sample.n_points=2000",
+    "train.steps=3",
+    "train.surface_batch=256",
+    "train.volume_batch=256",
+    "train.backbone=mlp",
+    "train.backbones.mlp.width=32",
+    "train.volume_samples=5000",
+    "train.picture=false",
+    "cover.resolution=32",
+    "cover.eps=0.05",
+    "contract.iterations=5",
+    "export.reconstruction_resolution=24",
+    "export.picture=false",
+    "evaluate.samples=500",
+    "evaluate.resolution=24",
+    "evaluate.picture=false",
+    "pipeline.report=false",
+]
 
 
 def run_cli(args: list[str], cwd: Path, env: dict | None = None, module: str = "qmdf") -> subprocess.CompletedProcess:
     full_env = {**os.environ, **(env or {})}
     full_env.pop("QMDF_RUN_NAME", None)
-    return subprocess.run([sys.executable, "-m", module, *args], cwd=cwd, env=full_env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", module, *args], cwd=cwd, env=full_env, capture_output=True, text=True, timeout=300
+    )
 
 
 def manifests(root: Path) -> list[dict]:

@@ -1,4 +1,5 @@
 """Hand-made medial axes with closed-form answers (not made by our pipeline)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """The Python API: the same pipeline and configs as the CLI."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -56,9 +57,19 @@ def test_the_api_says_where_it_writes_when_not_told(tmp_path, caplog):
 
 
 def test_medial_axis_returns_the_mat_and_metrics(tmp_path):
-    chain = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
-             "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
-             "evaluate.samples=2000", "evaluate.resolution=48", "evaluate.picture=false"]
+    chain = [
+        "input.shape=torus",
+        "input.shape_resolution=192",
+        "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
+        "cover.resolution=96",
+        "cover.eps=0.015",
+        "contract.iterations=300",
+        "export.reconstruction_resolution=48",
+        "export.picture=false",
+        "evaluate.samples=2000",
+        "evaluate.resolution=48",
+        "evaluate.picture=false",
+    ]
     mat = qmdf.medial_axis(None, overrides(tmp_path, *chain), run_dir=tmp_path / "m")
     assert mat.vertices.shape[1] == 3 and len(mat.radii) == len(mat.vertices)
     assert len(mat.faces) == 0 and len(mat.edges) == len(mat.vertices)  # the torus's axis: a closed polyline

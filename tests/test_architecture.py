@@ -1,6 +1,7 @@
 """Imports run one way: the library layer (geometry, medial, fields: plain functions over arrays) never imports
 the stages, the pipeline, the benchmarks or plugin discovery that sit on top of it, and the registry is a leaf.
 Read from the source (every import, inside functions too), so a lazy upward import cannot hide."""
+
 from __future__ import annotations
 
 import ast
@@ -8,8 +9,19 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent.parent / "qmdf"
 LIBRARY = ("qmdf.geometry", "qmdf.medial", "qmdf.fields")
-ABOVE_THE_LIBRARY = ("qmdf.stages", "qmdf.stage", "qmdf.pipeline", "qmdf.bench", "qmdf.api", "qmdf.plugins",
-                     "qmdf.config", "qmdf.__main__", "qmdf.sweep", "qmdf.evaluate", "qmdf.view")
+ABOVE_THE_LIBRARY = (
+    "qmdf.stages",
+    "qmdf.stage",
+    "qmdf.pipeline",
+    "qmdf.bench",
+    "qmdf.api",
+    "qmdf.plugins",
+    "qmdf.config",
+    "qmdf.__main__",
+    "qmdf.sweep",
+    "qmdf.evaluate",
+    "qmdf.view",
+)
 
 
 def _module_name(path: Path) -> str:
@@ -37,8 +49,11 @@ MODULES = {_module_name(p): _imports(p) for p in PACKAGE.rglob("*.py")}
 
 
 def test_the_library_layer_imports_nothing_above_it():
-    bad = {m: sorted(i for i in imps if _within(i, ABOVE_THE_LIBRARY))
-           for m, imps in MODULES.items() if _within(m, LIBRARY)}
+    bad = {
+        m: sorted(i for i in imps if _within(i, ABOVE_THE_LIBRARY))
+        for m, imps in MODULES.items()
+        if _within(m, LIBRARY)
+    }
     assert not {m: i for m, i in bad.items() if i}, "library modules importing the layers above them"
 
 
@@ -48,4 +63,6 @@ def test_the_registry_is_a_leaf():
 
 
 def test_every_module_was_read():
-    assert {"qmdf.medial.contraction", "qmdf.medial.covering", "qmdf.fields.fitting", "qmdf.stages.contract"} <= set(MODULES)
+    assert {"qmdf.medial.contraction", "qmdf.medial.covering", "qmdf.fields.fitting", "qmdf.stages.contract"} <= set(
+        MODULES
+    )

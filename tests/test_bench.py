@@ -1,4 +1,5 @@
 """The benchmark runner: one model through the real CLI, scored, with the paper's numbers beside it."""
+
 from __future__ import annotations
 
 import json
@@ -9,9 +10,23 @@ from mats import install_torus_mat_plugin
 
 def test_bench_models_on_one_procedural_model(cli):
     env = install_torus_mat_plugin(cli.cwd / "site", Path(__file__).parent)
-    proc = cli("models", "--reuse", "--only", "torus", "--data", str(cli.cwd / "no_data"), "--json", "rows.json",
-               "input.shape_resolution=256", "sample.n_points=2000", "pipeline.stages=[sample,torus_mat,evaluate]",
-               "evaluate.samples=2000", "evaluate.resolution=40", env=env, module="qmdf.bench")
+    proc = cli(
+        "models",
+        "--reuse",
+        "--only",
+        "torus",
+        "--data",
+        str(cli.cwd / "no_data"),
+        "--json",
+        "rows.json",
+        "input.shape_resolution=256",
+        "sample.n_points=2000",
+        "pipeline.stages=[sample,torus_mat,evaluate]",
+        "evaluate.samples=2000",
+        "evaluate.resolution=40",
+        env=env,
+        module="qmdf.bench",
+    )
     assert proc.returncode == 0, proc.stderr
     assert "running the procedural shapes only" in proc.stderr
     (row,) = json.loads((cli.cwd / "rows.json").read_text())
@@ -22,12 +37,27 @@ def test_bench_models_on_one_procedural_model(cli):
 
 
 def test_bench_extraction_on_the_torus(cli):
-    proc = cli("extraction", "--shapes", "torus", "--json", "rows.json", "cover.resolution=96", "cover.eps=0.015",
-               "contract.iterations=200", "export.reconstruction_resolution=32", "export.picture=false",
-               "evaluate.samples=1000", "evaluate.resolution=32", "evaluate.picture=false", module="qmdf.bench")
+    proc = cli(
+        "extraction",
+        "--shapes",
+        "torus",
+        "--json",
+        "rows.json",
+        "cover.resolution=96",
+        "cover.eps=0.015",
+        "contract.iterations=200",
+        "export.reconstruction_resolution=32",
+        "export.picture=false",
+        "evaluate.samples=1000",
+        "evaluate.resolution=32",
+        "evaluate.picture=false",
+        module="qmdf.bench",
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = json.loads((cli.cwd / "rows.json").read_text())
-    assert row["axis_mean"] < 5e-4 and abs(row["volume_ratio"]) < 0.01  # within half the 1e-3 q lattice and row["chi"] == row["expected_chi"] == 0
+    assert (
+        row["axis_mean"] < 5e-4 and abs(row["volume_ratio"]) < 0.01
+    )  # within half the 1e-3 q lattice and row["chi"] == row["expected_chi"] == 0
     assert row["contract_s"] > 0  # computed, not served from a cache
 
 
@@ -58,9 +88,16 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
     from qmdf.geometry.ma_format import read_ma
     from qmdf.pipeline import Pipeline
 
-    cfg = compose_cfg("input.shape=box", "input.shape_resolution=64", "cover.resolution=48", "cover.eps=0.02",
-                      "contract.iterations=100", "export.reconstruction_resolution=32", "export.picture=false",
-                      "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect,cover,contract,export]")
+    cfg = compose_cfg(
+        "input.shape=box",
+        "input.shape_resolution=64",
+        "cover.resolution=48",
+        "cover.eps=0.02",
+        "contract.iterations=100",
+        "export.reconstruction_resolution=32",
+        "export.picture=false",
+        "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect,cover,contract,export]",
+    )
     run = cli.cwd / "bench" / "box"
     Pipeline(cfg, run, cli.cwd).run()
     same = read_ma(recontract(run, cli.cwd / "again", []) / "mat.ma")
@@ -77,8 +114,15 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
         recontract(run, cli.cwd / "bad", ["contract.volume=tets"])
     with pytest.raises(QmdfError, match="not a run folder"):
         recontract(cli.cwd / "bench", cli.cwd / "bad", [])
-    proc = cli("features", "--recontract", str(cli.cwd / "bench"), "--json", "rows.json", "contract.iterations=50",
-               module="qmdf.bench")
+    proc = cli(
+        "features",
+        "--recontract",
+        str(cli.cwd / "bench"),
+        "--json",
+        "rows.json",
+        "contract.iterations=50",
+        module="qmdf.bench",
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = json.loads((cli.cwd / "rows.json").read_text())
     assert row["shape"] == "box" and row["recontract"] == ["contract.iterations=50"]
@@ -86,8 +130,9 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
 
 
 def test_bench_speed_times_every_stage_beside_its_floor(cli):
-    proc = cli("speed", "--only", "teacup", "--json", "speed.json", "--out", "runs/speed", "+debug=fast",
-               module="qmdf.bench")
+    proc = cli(
+        "speed", "--only", "teacup", "--json", "speed.json", "--out", "runs/speed", "+debug=fast", module="qmdf.bench"
+    )
     assert proc.returncode == 0, proc.stderr + proc.stdout
     (row,) = json.loads((cli.cwd / "speed.json").read_text())
     stages = {s["stage"]: s for s in row["stages"]}
@@ -101,13 +146,28 @@ def test_bench_speed_times_every_stage_beside_its_floor(cli):
 
 def test_bench_faults_counts_what_survives(cli):
     """One SIGINT trial (the signals in turn over more trials), a few fuzzed files, a 2-job shared-cache multirun."""
-    proc = cli("faults", "--trials", "1", "--fuzz", "5", "--jobs", "2", "--out", "runs/faults", "--json", "f.json",
-               module="qmdf.bench")
+    proc = cli(
+        "faults",
+        "--trials",
+        "1",
+        "--fuzz",
+        "5",
+        "--jobs",
+        "2",
+        "--out",
+        "runs/faults",
+        "--json",
+        "f.json",
+        module="qmdf.bench",
+    )
     assert proc.returncode == 0, proc.stderr + proc.stdout
     report = json.loads((cli.cwd / "f.json").read_text())
     (trial,) = report["interrupts"]
     assert trial["signal"] == "SIGINT" and trial["stopped_exit"] == 130 and trial["rerun_exit"] == 0
     assert trial["resumed"] and trial["steps"] == 400 and trial["max_weight_diff"] < 1e-5
     fuzz = report["fuzz"]
-    assert fuzz["crashed"] == 0 and fuzz["read"] + fuzz["refused"] == 35 == sum(fuzz["error_classes"].values()) + fuzz["read"]
+    assert (
+        fuzz["crashed"] == 0
+        and fuzz["read"] + fuzz["refused"] == 35 == sum(fuzz["error_classes"].values()) + fuzz["read"]
+    )
     assert report["multirun"]["complete"] == 2 and report["multirun"]["artifacts_not_matching_cache"] == 0

@@ -1,4 +1,5 @@
 """The CLI as users run it: `python -m qmdf ...` in a subprocess, from their own working directory."""
+
 from __future__ import annotations
 
 import json
@@ -58,7 +59,10 @@ def test_hydra_run_dir_and_relative_input(cli):
         (None, "input.path: file not found: .*missing.xyz"),
         ("", "input file is empty"),
         ("1 2 3\nnan 0 0\n" + "0 1 0\n" * 20, "NaN or infinite"),
-        ("0 0 0\n1 1 1\n2 2 2\n3 3 3\n4 4 4\n5 5 5\n6 6 6\n7 7 7\n8 8 8\n9 9 9\n10 10 10\n", "all points lie on a line"),
+        (
+            "0 0 0\n1 1 1\n2 2 2\n3 3 3\n4 4 4\n5 5 5\n6 6 6\n7 7 7\n8 8 8\n9 9 9\n10 10 10\n",
+            "all points lie on a line",
+        ),
     ],
 )
 def test_bad_input_one_line_no_traceback(cli, content, message):
@@ -121,7 +125,8 @@ def _external_plugin(site):
     """An installed third-party distribution with a stage, written out as pip would lay it down."""
     pkg = site / "qmdf_centroid"
     pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text(textwrap.dedent('''
+    (pkg / "__init__.py").write_text(
+        textwrap.dedent('''
         from dataclasses import dataclass
         from qmdf.artifacts import JSON, POINTS
         from qmdf.schema import param
@@ -140,9 +145,12 @@ def _external_plugin(site):
             def run(self, ctx):
                 pts = ctx.load("points").points
                 ctx.save("centroid", {"c": (pts.mean(0) * ctx.cfg.scale).tolist(), "n": len(pts)})
-    '''))
+    ''')
+    )
     (site / "qmdf_broken").mkdir()
-    (site / "qmdf_broken" / "__init__.py").write_text("import numpy\nraise RuntimeError('the plugin author broke this')\n")
+    (site / "qmdf_broken" / "__init__.py").write_text(
+        "import numpy\nraise RuntimeError('the plugin author broke this')\n"
+    )
     info = site / "qmdf_centroid-0.3.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: qmdf-centroid\nVersion: 0.3\n")
@@ -155,7 +163,10 @@ def _external_plugin(site):
 def test_external_stage_plugin_runs_inside_the_pipeline(cli):
     env = _external_plugin(cli.cwd / "site")
     listing = cli(env=env, module="qmdf.plugins")
-    assert "centroid" in listing.stdout and "entry point 'centroid = qmdf_centroid:Centroid' of qmdf-centroid 0.3" in listing.stdout
+    assert (
+        "centroid" in listing.stdout
+        and "entry point 'centroid = qmdf_centroid:Centroid' of qmdf-centroid 0.3" in listing.stdout
+    )
     assert "broken           BROKEN: RuntimeError: the plugin author broke this" in listing.stdout
 
     proc = cli(*FAST, "pipeline.stages=[sample,centroid]", "centroid.scale=2", env=env)
@@ -171,8 +182,10 @@ def test_external_stage_plugin_runs_inside_the_pipeline(cli):
 
     broken = cli(*FAST, "pipeline.stages=[sample,broken]", env=env)
     assert broken.returncode == 2 and "Traceback" not in broken.stderr
-    assert "stage plugin 'broken' (entry point 'broken = qmdf_broken:Thing' of qmdf-centroid 0.3) failed to load: " \
-           "RuntimeError: the plugin author broke this" in broken.stderr
+    assert (
+        "stage plugin 'broken' (entry point 'broken = qmdf_broken:Thing' of qmdf-centroid 0.3) failed to load: "
+        "RuntimeError: the plugin author broke this" in broken.stderr
+    )
 
 
 def test_plugin_listing_and_bench_help_read_well():
@@ -191,8 +204,12 @@ def test_paths_with_spaces_parentheses_and_accents_just_work(cli):
     """Hydra's grammar refused them raw; a directory was reported as "unsupported file type ''"."""
     from qmdf.__main__ import quote_paths
 
-    assert quote_paths(["input.path=a b.ply", "input.path=plain/x.ply", "input.path='q d.ply'", "seed=1"]) == \
-        ["input.path='a b.ply'", "input.path=plain/x.ply", "input.path='q d.ply'", "seed=1"]
+    assert quote_paths(["input.path=a b.ply", "input.path=plain/x.ply", "input.path='q d.ply'", "seed=1"]) == [
+        "input.path='a b.ply'",
+        "input.path=plain/x.ply",
+        "input.path='q d.ply'",
+        "seed=1",
+    ]
     folder = cli.cwd / "my scans (é)"
     folder.mkdir()
     np.savetxt(folder / "c.xyz", np.random.default_rng(0).uniform(-1, 1, (300, 3)))

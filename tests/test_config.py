@@ -1,4 +1,5 @@
 """Typed configs: every problem listed by key path; defaults from the dataclasses; typed sections."""
+
 from __future__ import annotations
 
 import pytest
@@ -24,15 +25,28 @@ def test_defaults_come_from_the_schemas(compose_cfg):
 
 def test_every_problem_is_listed_by_key_path(compose_cfg):
     cfg = compose_cfg(
-        "sample.n_points=-5", "input.kind=foo", "seed=abc", "+bogus=1",
-        "pipeline.stages=[sample,trian]", "+sample.degradations.noize.sigma=1",
-        "+sample.degradations.noise.sigma=-0.1", "cache.force=[cover]",
+        "sample.n_points=-5",
+        "input.kind=foo",
+        "seed=abc",
+        "+bogus=1",
+        "pipeline.stages=[sample,trian]",
+        "+sample.degradations.noize.sigma=1",
+        "+sample.degradations.noise.sigma=-0.1",
+        "cache.force=[cover]",
     )
     problems = cfgmod.validate(cfg)
-    assert keys(problems) == sorted([
-        "bogus", "cache.force[0]", "input.kind", "pipeline.stages[1]", "sample.degradations.noise.sigma",
-        "sample.degradations.noize", "sample.n_points", "seed",
-    ])
+    assert keys(problems) == sorted(
+        [
+            "bogus",
+            "cache.force[0]",
+            "input.kind",
+            "pipeline.stages[1]",
+            "sample.degradations.noise.sigma",
+            "sample.degradations.noize",
+            "sample.n_points",
+            "seed",
+        ]
+    )
     text = "\n".join(map(str, problems))
     assert "did you mean 'noise'" in text and "did you mean 'train'" in text
     assert "must be >= 10, got -5" in text

@@ -1,4 +1,5 @@
 """Envelope distances of medial primitives against brute-force minimisation over the primitive."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,13 @@ def brute_cone(p, c1, r1, c2, r2):
     c = c1 + t[:, None] * (c2 - c1)
     f = np.linalg.norm(p - c, axis=1) - (r1 + t * (r2 - r1))
     i = int(np.argmin(f))
-    res = minimize(lambda x: np.linalg.norm(p - c1 - x[0] * (c2 - c1)) - r1 - x[0] * (r2 - r1),
-                   [t[i]], bounds=[(0, 1)], method="L-BFGS-B", options={"ftol": 1e-15, "gtol": 1e-12})
+    res = minimize(
+        lambda x: np.linalg.norm(p - c1 - x[0] * (c2 - c1)) - r1 - x[0] * (r2 - r1),
+        [t[i]],
+        bounds=[(0, 1)],
+        method="L-BFGS-B",
+        options={"ftol": 1e-15, "gtol": 1e-12},
+    )
     return min(f[i], res.fun)
 
 
@@ -34,8 +40,14 @@ def brute_slab(p, c, r):
         lam = np.array([1 - x[0] - x[1], x[0], x[1]])
         return np.linalg.norm(p - lam @ c) - lam @ r
 
-    res = minimize(fun, [l2[k], l3[k]], method="SLSQP", bounds=[(0, 1), (0, 1)],
-                   constraints=[{"type": "ineq", "fun": lambda x: 1 - x[0] - x[1]}], options={"ftol": 1e-14})
+    res = minimize(
+        fun,
+        [l2[k], l3[k]],
+        method="SLSQP",
+        bounds=[(0, 1), (0, 1)],
+        constraints=[{"type": "ineq", "fun": lambda x: 1 - x[0] - x[1]}],
+        options={"ftol": 1e-14},
+    )
     return min(f[k], res.fun if res.success and res.x.sum() <= 1 + 1e-9 and res.x.min() >= -1e-9 else np.inf)
 
 

@@ -1,4 +1,5 @@
 """Scoring MATs: the evaluate CLI on MATs we did not make, the evaluate stage, the multirun table."""
+
 from __future__ import annotations
 
 import json
@@ -79,8 +80,14 @@ def test_evaluate_cli_bad_input(cli, tmp_path):
 
 def test_evaluate_stage_and_multirun_table(cli):
     env = install_torus_mat_plugin(cli.cwd / "site", TESTS)
-    args = ["input.shape=torus", "input.shape_resolution=256", "sample.n_points=2000",
-            "pipeline.stages=[sample,torus_mat,evaluate]", "evaluate.samples=3000", "evaluate.resolution=48"]
+    args = [
+        "input.shape=torus",
+        "input.shape_resolution=256",
+        "sample.n_points=2000",
+        "pipeline.stages=[sample,torus_mat,evaluate]",
+        "evaluate.samples=3000",
+        "evaluate.resolution=48",
+    ]
     proc = cli(*args, env=env)
     assert proc.returncode == 0, proc.stderr
     assert "| CD " in proc.stdout and " chi 0 -> " in proc.stdout  # the one-line summary carries the metrics
@@ -90,7 +97,9 @@ def test_evaluate_stage_and_multirun_table(cli):
     metrics = json.loads((run / "02_evaluate" / "metrics.json").read_text())
     # the torus input is already centred with longest side 1.0: the exact MAT reconstructs it
     assert metrics["chamfer"] < 2e-4 and metrics["chi"] == 0 and metrics["reference"] == "input surface"
-    assert (run / "02_evaluate" / "reconstruction.png").exists() and (run / "02_evaluate" / "reconstruction.ply").exists()
+    assert (run / "02_evaluate" / "reconstruction.png").exists() and (
+        run / "02_evaluate" / "reconstruction.ply"
+    ).exists()
 
     sweep = cli("-m", *args, "torus_mat.radius_offset=0.0,0.01,0.02", env=env)
     assert sweep.returncode == 0, sweep.stderr
@@ -103,7 +112,9 @@ def test_evaluate_stage_and_multirun_table(cli):
     assert cds[0] < 2e-4 and cds[1] == pytest.approx(0.01, abs=5e-4) and cds[2] == pytest.approx(0.02, abs=5e-4)
     assert (table.parent / "metrics.md").read_text().startswith("| job | overrides | status |")
     sweep_page = (table.parent / "report.html").read_text()  # each job linked to its own report
-    assert all(f'href="{j}/report.html"' in sweep_page for j in (0, 1, 2)) and "torus_mat.radius_offset=0.02" in sweep_page
+    assert (
+        all(f'href="{j}/report.html"' in sweep_page for j in (0, 1, 2)) and "torus_mat.radius_offset=0.02" in sweep_page
+    )
     # sample was computed once above and reused by every job of the sweep
     jobs = manifests(table.parent)
     assert all(j["stages"][0]["status"] == "cached" for j in jobs)
@@ -128,8 +139,14 @@ def test_evaluate_stage_prefers_the_tetrahedral_chi(compose_cfg, tmp_path):
 
     register_stage("ring_of_tets")(RingOfTets)
     try:
-        cfg = compose_cfg("input.shape=torus", "input.shape_resolution=64", "pipeline.stages=[sample,ring_of_tets,evaluate]",
-                          "evaluate.samples=500", "evaluate.resolution=32", "evaluate.picture=false")
+        cfg = compose_cfg(
+            "input.shape=torus",
+            "input.shape_resolution=64",
+            "pipeline.stages=[sample,ring_of_tets,evaluate]",
+            "evaluate.samples=500",
+            "evaluate.resolution=32",
+            "evaluate.picture=false",
+        )
         res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     finally:
         STAGES.remove("ring_of_tets")
@@ -172,11 +189,19 @@ def test_evaluate_reference_scores_a_sparse_cloud_against_its_source(compose_cfg
 
     register_stage("exact_torus_mat")(ExactTorusMat)
     try:
-        base = [f"input.path={tmp_path / 'cloud.xyz'}", "pipeline.stages=[sample,exact_torus_mat,evaluate]",
-                "evaluate.samples=3000", "evaluate.resolution=48", "evaluate.picture=false"]
+        base = [
+            f"input.path={tmp_path / 'cloud.xyz'}",
+            "pipeline.stages=[sample,exact_torus_mat,evaluate]",
+            "evaluate.samples=3000",
+            "evaluate.resolution=48",
+            "evaluate.picture=false",
+        ]
         own = Pipeline(compose_cfg(*base), tmp_path / "own", tmp_path).run().load("metrics")
-        ref = Pipeline(compose_cfg(*base, f"evaluate.reference={tmp_path / 'torus.ply'}"), tmp_path / "ref",
-                       tmp_path).run().load("metrics")
+        ref = (
+            Pipeline(compose_cfg(*base, f"evaluate.reference={tmp_path / 'torus.ply'}"), tmp_path / "ref", tmp_path)
+            .run()
+            .load("metrics")
+        )
     finally:
         STAGES.remove("exact_torus_mat")
     assert own["reference"] == "input points" and own["chamfer"] > 5e-3  # the gaps of 600 points

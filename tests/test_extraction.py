@@ -1,4 +1,5 @@
 """cover -> contract -> export -> evaluate on exact fields with known medial axes (no training involved)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -10,9 +11,19 @@ from qmdf.geometry import ellipsoid
 from qmdf.geometry.normalize import Normalization
 from qmdf.pipeline import Pipeline
 
-CHAIN = ["input.shape=torus", "input.shape_resolution=192", "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
-         "cover.resolution=96", "cover.eps=0.015", "contract.iterations=300", "export.reconstruction_resolution=48", "export.picture=false",
-         "evaluate.samples=3000", "evaluate.resolution=48", "evaluate.picture=false"]
+CHAIN = [
+    "input.shape=torus",
+    "input.shape_resolution=192",
+    "pipeline.stages=[sample,analytic_field,cover,contract,sheet,export,evaluate]",
+    "cover.resolution=96",
+    "cover.eps=0.015",
+    "contract.iterations=300",
+    "export.reconstruction_resolution=48",
+    "export.picture=false",
+    "evaluate.samples=3000",
+    "evaluate.resolution=48",
+    "evaluate.picture=false",
+]
 
 
 def test_analytic_fields_are_exact():
@@ -28,7 +39,6 @@ def test_analytic_fields_are_exact():
     assert np.all(b.evaluate(inside)["q"] >= -1e-12)
 
 
-
 def test_ellipsoid_distances_against_brute_force():
     from scipy.optimize import minimize_scalar
     from scipy.spatial import cKDTree
@@ -38,7 +48,7 @@ def test_ellipsoid_distances_against_brute_force():
     p = rng.uniform(-0.6, 0.6, (400, 3))
     x, _ = ellipsoid.closest_point(p, axes)
     assert np.abs(((x / axes) ** 2).sum(1) - 1).max() < 1e-12  # on the surface
-    normal = x / axes ** 2
+    normal = x / axes**2
     cross = np.cross(p - x, normal)
     assert np.abs(cross).max() < 1e-12  # p - x is along the normal: a stationary point of the distance
     # ... and the global minimum: brute force over a fine (u, v) parametrisation, refined per point
@@ -58,8 +68,11 @@ def test_ellipsoid_distances_against_brute_force():
     k, semi = ellipsoid.medial_disc(axes)
     far = np.array([[0.6, 0.1, 0.05], [-0.2, 0.4, -0.1], [0.1, -0.5, 0.2]])
     for q, dist in zip(far, f.axis_distance(far)):
-        best = minimize_scalar(lambda t: np.hypot(np.hypot(q[0] - semi[0] * np.cos(t), q[1] - semi[1] * np.sin(t)), q[2]),
-                               bounds=(np.arctan2(q[1] * semi[0], q[0] * semi[1]) - 0.5, np.arctan2(q[1] * semi[0], q[0] * semi[1]) + 0.5), method="bounded")
+        best = minimize_scalar(
+            lambda t: np.hypot(np.hypot(q[0] - semi[0] * np.cos(t), q[1] - semi[1] * np.sin(t)), q[2]),
+            bounds=(np.arctan2(q[1] * semi[0], q[0] * semi[1]) - 0.5, np.arctan2(q[1] * semi[0], q[0] * semi[1]) + 0.5),
+            method="bounded",
+        )
         assert abs(best.fun - dist) < 1e-8
 
 
@@ -96,7 +109,9 @@ def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
     run = res.run_dir / "05_export"
     ply = trimesh.load(run / "mat_ply.ply", process=False)
     assert np.allclose(ply.metadata["_ply_raw"]["vertex"]["data"]["radius"], mat.radii, atol=1e-6)
-    assert (run / "mat_input_units.ma").read_text().splitlines()[0] == f"{len(mat.vertices)} {len(mat.edges)} {len(mat.faces)}"
+    assert (run / "mat_input_units.ma").read_text().splitlines()[
+        0
+    ] == f"{len(mat.vertices)} {len(mat.edges)} {len(mat.faces)}"
 
 
 def test_exact_contraction_agrees_with_the_lattice(compose_cfg, tmp_path):
@@ -149,8 +164,15 @@ def test_tetrahedralize_makes_a_tet_mesh_of_the_covering(compose_cfg, tmp_path, 
     caller.mkdir()
     monkeypatch.chdir(caller)
 
-    cfg = compose_cfg("input.shape=torus", "input.shape_resolution=128", "pipeline.stages=[sample,analytic_field,cover,tetrahedralize]",
-                      "cover.resolution=64", "cover.eps=0.03", "tetrahedralize.edge_length_fac=0.1", "tetrahedralize.optimize=false")
+    cfg = compose_cfg(
+        "input.shape=torus",
+        "input.shape_resolution=128",
+        "pipeline.stages=[sample,analytic_field,cover,tetrahedralize]",
+        "cover.resolution=64",
+        "cover.eps=0.03",
+        "tetrahedralize.edge_length_fac=0.1",
+        "tetrahedralize.optimize=false",
+    )
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     v, t = res.load("covering_tets")
     vol = np.abs(signed_volumes(v, t)).sum()
@@ -229,8 +251,17 @@ def test_inside_q_continues_q_as_mf_plus_sdf_outside():
     assert np.array_equal(wrapped["q"][inside], raw["q"][inside])
     assert np.allclose(wrapped["q"], raw["mf"] + raw["sdf"])  # one formula on both sides: no kink at the surface
     h, e = 1e-6, np.eye(3)
-    fd = np.stack([(InsideQ(_RidgeSphere(), 2.0).evaluate(p + h * e[k])["q"]
-                    - InsideQ(_RidgeSphere(), 2.0).evaluate(p - h * e[k])["q"]) / (2 * h) for k in range(3)], 1)
+    fd = np.stack(
+        [
+            (
+                InsideQ(_RidgeSphere(), 2.0).evaluate(p + h * e[k])["q"]
+                - InsideQ(_RidgeSphere(), 2.0).evaluate(p - h * e[k])["q"]
+            )
+            / (2 * h)
+            for k in range(3)
+        ],
+        1,
+    )
     assert np.allclose(wrapped["q_grad"], fd, atol=1e-5)
 
 
@@ -242,8 +273,16 @@ def test_contraction_stays_inside_the_shape(weight):
     from qmdf.medial.contraction import contract
 
     s = trimesh.creation.icosphere(subdivisions=3, radius=0.302)
-    x = contract(_RidgeSphere(), np.asarray(s.vertices), np.asarray(s.faces), iterations=300, lattice=0,
-                 lambda_volume=0.0, lambda_laplacian=1.0, outside_weight=weight)[0]
+    x = contract(
+        _RidgeSphere(),
+        np.asarray(s.vertices),
+        np.asarray(s.faces),
+        iterations=300,
+        lattice=0,
+        lambda_volume=0.0,
+        lambda_laplacian=1.0,
+        outside_weight=weight,
+    )[0]
     r = np.linalg.norm(x, axis=1)
     if weight == 0:
         assert r.min() > 0.33  # every vertex left: the ridge is behind them
@@ -254,7 +293,9 @@ def test_contraction_stays_inside_the_shape(weight):
 def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(compose_cfg, tmp_path, caplog):
     """The torus's circle cannot go below three vertices: asked for two with no slack, the sheet is judged not
     compact, and export writes the membrane (faces, two layers) as the MAT with a warning, the sheet kept."""
-    res = Pipeline(compose_cfg(*CHAIN, "sheet.target_vertices=2", "sheet.compact_slack=1"), tmp_path / "run", tmp_path).run()
+    res = Pipeline(
+        compose_cfg(*CHAIN, "sheet.target_vertices=2", "sheet.compact_slack=1"), tmp_path / "run", tmp_path
+    ).run()
     assert res.load("sheet_stats")["compact"] is False and len(res.load("sheet").faces) == 0
     assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
     assert "the single sheet is not compact" in caplog.text

@@ -1,5 +1,6 @@
 """The sharp-feature module: feature points from a mesh's dihedral angles and by the paper's procedure on an
 exact field, and retraining that pins the field to them."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,10 +31,18 @@ def test_mesh_features_lie_on_the_box_edges(compose_cfg, tmp_path):
 
 def test_field_procedure_reaches_the_box_edges(compose_cfg, tmp_path):
     """From the exact box field and its MAT: membrane boundary -> march along g1 + g2 -> QEM onto the edge."""
-    cfg = compose_cfg("input.shape=box", "input.shape_resolution=64", "sample.n_points=20000",
-                      "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect]",
-                      "cover.resolution=128", "cover.eps=0.01", "contract.iterations=300", "feature_detect.source=field",
-                      "feature_detect.field_seeds=membrane", "contract.outside_weight=0")
+    cfg = compose_cfg(
+        "input.shape=box",
+        "input.shape_resolution=64",
+        "sample.n_points=20000",
+        "pipeline.stages=[sample,analytic_field,cover,contract,export,feature_detect]",
+        "cover.resolution=128",
+        "cover.eps=0.01",
+        "contract.iterations=300",
+        "feature_detect.source=field",
+        "feature_detect.field_seeds=membrane",
+        "contract.outside_weight=0",
+    )
     # outside_weight=0: the exact field's q already rises outside (q = sdf there); the learned field's falls, and
     # the +2 sdf that stops it would triple this slope and pull the first MAT's tips back (21 boundary edges, not 60)
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
@@ -49,8 +58,13 @@ def test_point_cloud_features_cover_every_box_edge_with_face_normals(compose_cfg
     but the corners, on the edge, with the faces' right angle in their mean normal."""
     from scipy.spatial import cKDTree
 
-    cfg = compose_cfg("input.shape=box", "sample.n_points=20000", "pipeline.stages=[sample,analytic_field,feature_detect]",
-                      "feature_detect.source=field", "feature_detect.field_seeds=points")
+    cfg = compose_cfg(
+        "input.shape=box",
+        "sample.n_points=20000",
+        "pipeline.stages=[sample,analytic_field,feature_detect]",
+        "feature_detect.source=field",
+        "feature_detect.field_seeds=points",
+    )
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     found = res.load("feature_points")
     stats = res.load("features")
@@ -65,9 +79,16 @@ def test_point_cloud_features_cover_every_box_edge_with_face_normals(compose_cfg
 def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):
     # the paper's route: its field has no mf targets, so the sharp terms alone move mf at the features (the mesh
     # route's mf targets near an edge also go to 0, but over more steps than this smoke test runs)
-    cfg = compose_cfg("input.shape=box", "pipeline.stages=[sample,train,feature_detect,feature_retrain]",
-                      "train.steps=60", "train.surface_batch=512", "train.volume_batch=512", "train.supervision=paper",
-                      "feature_retrain.steps=60", "feature_detect.spacing=0.02")
+    cfg = compose_cfg(
+        "input.shape=box",
+        "pipeline.stages=[sample,train,feature_detect,feature_retrain]",
+        "train.steps=60",
+        "train.surface_batch=512",
+        "train.volume_batch=512",
+        "train.supervision=paper",
+        "feature_retrain.steps=60",
+        "feature_detect.spacing=0.02",
+    )
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     stats = res.load("training")
     assert stats["feature_abs_sdf_after"] < 0.5 * stats["feature_abs_sdf_before"]
@@ -100,7 +121,10 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
     covering, _, _ = build_covering(field, resolution=96, eps=0.01, max_faces=0, log=logging.getLogger("test"))
     d = cKDTree(covering.vertices).query(sharp)[0]
     # measured 0.58 / 0.72 voxel; the step to a constant outside gave 0.78 / 1.02
-    assert np.median(d) < 0.65 * voxel and np.percentile(d, 90) < 0.85 * voxel, (np.median(d) / voxel, np.percentile(d, 90) / voxel)
+    assert np.median(d) < 0.65 * voxel and np.percentile(d, 90) < 0.85 * voxel, (
+        np.median(d) / voxel,
+        np.percentile(d, 90) / voxel,
+    )
 
     v, f = np.asarray(covering.vertices), np.asarray(covering.faces)
     reach = {}
@@ -112,8 +136,9 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
 
     folded = {}
     for weight, zip_weight in ((10.0, 0.0), (0.0, 0.0), (10.0, 1000.0)):
-        x, history, vol0, _ = contract(field, v, f, features=sharp, iterations=300, feature_weight=weight,
-                                       zip_weight=zip_weight)
+        x, history, vol0, _ = contract(
+            field, v, f, features=sharp, iterations=300, feature_weight=weight, zip_weight=zip_weight
+        )
         reach[weight, zip_weight] = np.mean(cKDTree(x).query(sharp)[0] < 0.003)
         mat = MedialMesh(x, np.abs(field.evaluate(x)["sdf"]), np.zeros((0, 2), np.int64), f).with_face_edges()
         folded[weight, zip_weight] = np.mean(boundary_distance(sharp, mat) < 0.01)
@@ -173,9 +198,14 @@ def test_bisector_samples_lie_on_the_box_medial_axis_with_its_radius():
 
 def test_contract_after_feature_detect_pulls_toward_the_features(compose_cfg, tmp_path):
     """The pipeline hands feature_detect's points to a later contract (and only to a later one)."""
-    cfg = compose_cfg("input.shape=box", "input.shape_resolution=64",
-                      "pipeline.stages=[sample,analytic_field,cover,contract,feature_detect,cover,contract]",
-                      "cover.resolution=64", "cover.eps=0.02", "contract.iterations=200")
+    cfg = compose_cfg(
+        "input.shape=box",
+        "input.shape_resolution=64",
+        "pipeline.stages=[sample,analytic_field,cover,contract,feature_detect,cover,contract]",
+        "cover.resolution=64",
+        "cover.eps=0.02",
+        "contract.iterations=200",
+    )
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     first = __import__("json").loads((res.run_dir / "03_contract" / "contraction.json").read_text())
     second = res.load("contraction")
@@ -215,7 +245,19 @@ def test_layer_zip_closes_the_layers_near_features_only():
         return np.abs(x[sel, 1]).mean() * 2  # the layers' distance
 
     for weight, near_after, far_after in ((1000.0, (0, 2e-3), (7e-3, 9e-3)), (0.0, (7e-3, 9e-3), (7e-3, 9e-3))):
-        x = contract(_FlatField(), v, f, features=feats, iterations=300, lattice=0, lambda_volume=0,
-                     lambda_laplacian=0, feature_weight=10, zip_weight=weight, zip_reach=0.01, zip_near=0.05)[0]
+        x = contract(
+            _FlatField(),
+            v,
+            f,
+            features=feats,
+            iterations=300,
+            lattice=0,
+            lambda_volume=0,
+            lambda_laplacian=0,
+            feature_weight=10,
+            zip_weight=weight,
+            zip_reach=0.01,
+            zip_near=0.05,
+        )[0]
         near, far = gap(x, lambda s: (s > 0.1) & (s < 0.14)), gap(x, lambda s: s < 0.05)
         assert near_after[0] <= near <= near_after[1] and far_after[0] <= far <= far_after[1], (weight, near, far)

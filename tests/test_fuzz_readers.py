@@ -2,6 +2,7 @@
 ``InputError`` (exit 2, one line), never another exception (a traceback). Inputs are random bytes, and valid
 files of each format with bytes flipped, cut short or lines shuffled, so the parsers get past their first line.
 """
+
 from __future__ import annotations
 
 import io
@@ -34,8 +35,12 @@ def _valid(suffix: str) -> bytes:
 
 
 SUFFIXES = (".xyz", ".npy", ".ply", ".ply binary", ".obj", ".off", ".stl")
-SETTINGS = settings(max_examples=40, deadline=None, derandomize=True,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+SETTINGS = settings(
+    max_examples=40,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 def _load(tmp_path, suffix: str, data: bytes) -> None:

@@ -1,4 +1,5 @@
 """Reading inputs: each supported format, and each way a user's file can be unusable (one clear line)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -84,7 +85,11 @@ GARBAGE = bytes(np.random.default_rng(1).integers(0, 256, 4096, dtype=np.uint8))
         ("line.xyz", np.outer(np.linspace(0, 1, 50), [1, 2, 3]), "all points lie on a line"),
         ("plane.xyz", np.column_stack([cube_points(50)[:, :2], np.zeros(50)]), "all points lie on a plane"),
         ("same.xyz", np.ones((50, 3)), "all points coincide"),
-        ("huge.xyz", cube_points() * 1e15, "coordinates of magnitude 9.99e\\+14, above input.max_abs_coordinate=1e\\+09"),
+        (
+            "huge.xyz",
+            cube_points() * 1e15,
+            "coordinates of magnitude 9.99e\\+14, above input.max_abs_coordinate=1e\\+09",
+        ),
         ("strings.npy", np.array(["a", "b"]), "expected numbers"),
     ],
 )
@@ -117,7 +122,9 @@ def test_all_faces_degenerate_is_refused(tmp_path):
     v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 1], [0, 2, 2]], float)
     f = np.array([[0, 1, 2], [0, 3, 4], [1, 1, 3]])
     path = tmp_path / "flat.obj"
-    path.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a+1} {b+1} {c+1}\n" for a, b, c in f))
+    path.write_text(
+        "".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f)
+    )
     with pytest.raises(InputError, match="all 3 faces are degenerate"):
         load_geometry(path)
 
@@ -144,9 +151,13 @@ def test_limits_are_configurable(tmp_path):
 
 
 def _ascii_ply(path, vertices, faces):
-    head = (f"ply\nformat ascii 1.0\nelement vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
-            f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
-    path.write_text(head + "".join(f"{a} {b} {c}\n" for a, b, c in vertices) + "".join(f"3 {a} {b} {c}\n" for a, b, c in faces))
+    head = (
+        f"ply\nformat ascii 1.0\nelement vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    path.write_text(
+        head + "".join(f"{a} {b} {c}\n" for a, b, c in vertices) + "".join(f"3 {a} {b} {c}\n" for a, b, c in faces)
+    )
     return path
 
 

@@ -1,4 +1,5 @@
 """The .ma format: round trip, face edges completed, extended variants, broken files refused."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,11 +26,14 @@ def test_extended_variant_fields_are_ignored(tmp_path):
     assert mat.radii.tolist() == [0.5, 0.25, 0.1] and mat.faces.tolist() == [[0, 1, 2]]
 
 
-@pytest.mark.parametrize("text, message", [
-    ("2 0 0\nv 0 0 0 1\n", "header says 2 0 0"),
-    ("1 1 0\nv 0 0 0 1\ne 0 5\n", "outside 0..0"),
-    ("x y z\n", "not a valid .ma file"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("2 0 0\nv 0 0 0 1\n", "header says 2 0 0"),
+        ("1 1 0\nv 0 0 0 1\ne 0 5\n", "outside 0..0"),
+        ("x y z\n", "not a valid .ma file"),
+    ],
+)
 def test_broken_files_are_refused(tmp_path, text, message):
     (tmp_path / "c.ma").write_text(text)
     with pytest.raises(InputError, match=message):

@@ -1,4 +1,5 @@
 """Metrics against cases with a known answer."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,8 +34,9 @@ def torus_mat(n=400, R=0.35, r=0.15):
 def test_reconstruction_of_the_torus_mat_matches_the_torus():
     union = EnvelopeUnion(*torus_mat())
     gt = get_shape("torus").mesh(256)
-    out, mesh, (R, r_to_g), (G, g_to_r) = M.reconstruction_distances(union, gt.vertices, gt.faces, 20000,
-                                                                       np.random.default_rng(0), resolution=96)
+    out, mesh, (R, r_to_g), (G, g_to_r) = M.reconstruction_distances(
+        union, gt.vertices, gt.faces, 20000, np.random.default_rng(0), resolution=96
+    )
     assert mesh.is_watertight and (2 - mesh.euler_number) // 2 == 1
     assert np.abs(torus_sdf(R)).max() < 2e-5  # samples lie on the envelope: the polyline's sagitta, 1.1e-5
     assert out["chamfer"] < 1e-4 and out["hausdorff"] < 3e-4

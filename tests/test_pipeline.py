@@ -1,4 +1,5 @@
 """The pipeline runner: wiring checked at start, content-keyed caching, atomic stage outputs, the manifest."""
+
 from __future__ import annotations
 
 import json
@@ -140,7 +141,9 @@ def test_a_changed_input_file_is_not_served_from_the_cache(compose_cfg, tmp_path
     np.savetxt(path, rng.normal(size=(300, 3)))
     a = run(compose_cfg, tmp_path, "pipeline.stages=[sample]", "input.path=cloud.xyz")
     assert statuses(a) == [("sample", "ran")]
-    assert statuses(run(compose_cfg, tmp_path, "pipeline.stages=[sample]", "input.path=cloud.xyz")) == [("sample", "cached")]
+    assert statuses(run(compose_cfg, tmp_path, "pipeline.stages=[sample]", "input.path=cloud.xyz")) == [
+        ("sample", "cached")
+    ]
     np.savetxt(path, rng.normal(size=(300, 3)))
     b = run(compose_cfg, tmp_path, "pipeline.stages=[sample]", "input.path=cloud.xyz")
     assert statuses(b) == [("sample", "ran")]
@@ -201,8 +204,13 @@ def test_manifest_records_every_artifact(compose_cfg, tmp_path):
         path = res.run_dir / a["path"]
         assert path.stat().st_size == a["bytes"] and len(a["sha256"]) == 64
     # the points before degradations are kept only when a degradation changed them (no identical copy)
-    degraded = run(compose_cfg, tmp_path, "pipeline.stages=[sample,scale]", "+sample.degradations.subsample.n=500",
-                   run_dir=tmp_path / "runs" / "degraded")
+    degraded = run(
+        compose_cfg,
+        tmp_path,
+        "pipeline.stages=[sample,scale]",
+        "+sample.degradations.subsample.n=500",
+        run_dir=tmp_path / "runs" / "degraded",
+    )
     assert len(degraded.load("clean_points")) > len(degraded.load("points")) == 500
     assert m["stages"][1]["artifacts"]["scaled"]["path"] == "01_scale/scaled.npz"
     assert (res.run_dir / "config.yaml").exists()
@@ -223,16 +231,31 @@ def test_a_run_whose_process_died_is_recognised_as_abandoned(compose_cfg, tmp_pa
     dead.wait()
     run_dir = tmp_path / "killed"
     (run_dir / ".01_train.partial").mkdir(parents=True)
-    (run_dir / "manifest.json").write_text(json.dumps({"status": "running", "pid": dead.pid, "host": socket.gethostname(),
-                                                       "started": "then", "stages": [{"name": "sample"}]}))
+    (run_dir / "manifest.json").write_text(
+        json.dumps(
+            {
+                "status": "running",
+                "pid": dead.pid,
+                "host": socket.gethostname(),
+                "started": "then",
+                "stages": [{"name": "sample"}],
+            }
+        )
+    )
     result = run(compose_cfg, tmp_path, "pipeline.stages=[sample]", run_dir=run_dir)
-    assert result.manifest["previous"] == {"status": "abandoned", "pid": dead.pid, "started": "then", "stages_done": ["sample"]}
+    assert result.manifest["previous"] == {
+        "status": "abandoned",
+        "pid": dead.pid,
+        "started": "then",
+        "stages_done": ["sample"],
+    }
     assert not (run_dir / ".01_train.partial").exists() and "was abandoned" in caplog.text
     # a run still alive (this very process) is never taken for abandoned
     alive = tmp_path / "alive"
     alive.mkdir()
-    (alive / "manifest.json").write_text(json.dumps({"status": "running", "pid": __import__("os").getpid(),
-                                                     "host": socket.gethostname(), "stages": []}))
+    (alive / "manifest.json").write_text(
+        json.dumps({"status": "running", "pid": __import__("os").getpid(), "host": socket.gethostname(), "stages": []})
+    )
     assert "previous" not in run(compose_cfg, tmp_path, "pipeline.stages=[sample]", run_dir=alive).manifest
 
 

@@ -1,4 +1,5 @@
 """The heartbeat a log shows: at most one line per interval with the count and the time left, one at the end."""
+
 from __future__ import annotations
 
 from qmdf.progress import Heartbeat, duration

@@ -1,4 +1,5 @@
 """The stage registry: decorators, duplicates, broken plugins reported with their real error."""
+
 from __future__ import annotations
 
 import textwrap

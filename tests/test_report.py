@@ -1,6 +1,7 @@
 """report.html: one self-contained page per run (no network needed), with the 3D view and its layers, the
 pictures, the metrics beside the paper's, the stage times and the config; opened in a real headless browser
 where one is installed."""
+
 from __future__ import annotations
 
 import re
@@ -15,8 +16,11 @@ def report_run(tmp_path_factory):
     from qmdf.api import run
 
     tmp = tmp_path_factory.mktemp("report")
-    res = run(None, [f"cache.dir={tmp / 'cache'}", *FAST, "pipeline.report=true", "train.picture=true",
-                     "export.picture=true"], run_dir=tmp / "run")
+    res = run(
+        None,
+        [f"cache.dir={tmp / 'cache'}", *FAST, "pipeline.report=true", "train.picture=true", "export.picture=true"],
+        run_dir=tmp / "run",
+    )
     return res.run_dir
 
 
@@ -26,8 +30,13 @@ def test_the_run_writes_a_self_contained_report(report_run):
     # self-contained: plotly's JavaScript inlined, nothing fetched, pictures as data URIs
     assert not re.search(r"<script[^>]+src=", page) and not re.search(r"<(img|link)[^>]+(src|href)=\"http", page)
     assert "Plotly.newPlot" in page and 'id="mat-view"' in page
-    for layer in ("MAT (by radius)", "input points", "covering (before contraction)", "covering after contraction",
-                  "reconstruction"):
+    for layer in (
+        "MAT (by radius)",
+        "input points",
+        "covering (before contraction)",
+        "covering after contraction",
+        "reconstruction",
+    ):
         assert f'"name":"{layer}"' in page, layer
     assert page.count("data:image/png;base64,") >= 3  # slices, losses, mat
     assert "<td>CD</td>" in page and "<h2>Stages</h2>" in page and "<td>contract</td>" in page

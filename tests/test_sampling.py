@@ -1,4 +1,5 @@
 """Surface sampling, normalisation and the degradation plugins: measured against what they promise."""
+
 from __future__ import annotations
 
 import numpy as np

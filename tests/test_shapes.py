@@ -1,4 +1,5 @@
 """Procedural shapes: watertight, the expected genus, and exact SDFs that agree with the meshes."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,7 +31,9 @@ def test_watertight_with_expected_genus(name, resolution):
 def test_torus_volume_matches_closed_form():
     R, r = 0.35, 0.15
     mesh = get_shape("torus").mesh(128)
-    assert mesh.volume == pytest.approx(2 * np.pi**2 * R * r * r, rel=5e-3)  # inscribed polygons lose ~0.2% at this resolution
+    assert mesh.volume == pytest.approx(
+        2 * np.pi**2 * R * r * r, rel=5e-3
+    )  # inscribed polygons lose ~0.2% at this resolution
 
 
 def test_ellipsoid_vertices_lie_on_the_ellipsoid():

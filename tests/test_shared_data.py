@@ -1,4 +1,5 @@
 """Every benchmark file in ../shared/data loads with the counts its MANIFEST states (skipped without it)."""
+
 from __future__ import annotations
 
 import csv
@@ -30,7 +31,9 @@ def test_benchmark_file_loads_with_manifest_counts(row):
         ref.merge_vertices(merge_tex=True, merge_norm=True)
         ref.remove_unreferenced_vertices()
         assert g.is_mesh and (len(g.points), len(g.faces)) == (len(ref.vertices), c["F"])
-        edges = np.unique(np.sort(np.concatenate([g.faces[:, [0, 1]], g.faces[:, [1, 2]], g.faces[:, [2, 0]]]), 1), axis=0)
+        edges = np.unique(
+            np.sort(np.concatenate([g.faces[:, [0, 1]], g.faces[:, [1, 2]], g.faces[:, [2, 0]]]), 1), axis=0
+        )
         chi = len(g.points) - len(edges) + len(g.faces)
         assert chi == ref.euler_number
         if len(g.points) == c["V"]:

@@ -1,5 +1,6 @@
 """Sharp convex edges of a point cloud from two-plane fits: exact on the box even when the normals that split
 each neighbourhood are rounded off like a learned field's; nothing on a smooth sphere; a concave edge refused."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,9 +17,11 @@ from tests.test_features import box_edge_distance
 def rounded_box_normals(p: np.ndarray, rho: float) -> np.ndarray:
     """Gradients of the box rounded by ``rho`` at points of the sharp box: they turn across a band of width
     about rho around each edge, as a learned SDF's do."""
+
     def sdf(x):
         q = np.abs(x) - (BOX_HALF - rho)
         return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(1), 0) - rho
+
     h = 1e-6
     return np.stack([(sdf(p + h * e) - sdf(p - h * e)) / (2 * h) for e in np.eye(3)], 1)
 
@@ -76,8 +79,10 @@ def test_edge_pieces_close_the_gaps_of_a_sparse_cloud_and_stop_at_the_corners():
     sharp = fit.sharp(30.0, 4)
     pieces = sample_segments(*fit.segments(sharp), 0.005)
     truth = sample_segments(*sharp_mesh_segments(box.vertices, box.faces, 30.0)[:2], 0.005)
-    covered = {name: np.mean(cKDTree(found).query(truth)[0] < 0.01) for name, found in
-               (("points", fit.point[sharp]), ("pieces", pieces))}
+    covered = {
+        name: np.mean(cKDTree(found).query(truth)[0] < 0.01)
+        for name, found in (("points", fit.point[sharp]), ("pieces", pieces))
+    }
     assert covered["points"] < 0.6 and covered["pieces"] > 0.8, covered
     d = box_edge_distance(pieces)
     # a few fits near a corner take two faces' points for one plane, a little off

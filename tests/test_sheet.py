@@ -1,6 +1,7 @@
 """The single sheet: the collapse keeps the solid's topology, the placement puts it on the axis, the SQEM
 simplification keeps topology and envelope. Known answers: a disc (chi 1, a rim), a circle (chi 0, no faces),
 three half-planes meeting along a line (a seam), an annulus, a triangle of lone edges."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,8 +36,17 @@ def test_collapse_keeps_the_topology_of_discs_tubes_and_seams():
         assert cx.euler == 1 and cx.cubes == 0 and len(cx.squares) > 0
     tube = np.hypot(R - 0.3, Z)  # q of a torus's circle
     assert collapse_to_sheet(tube < 0.05, tube, 0.025).euler == 0
-    planes = np.min([np.abs(-np.sin(a) * X + np.cos(a) * Y) + np.maximum(-(np.cos(a) * X + np.sin(a) * Y), 0)
-                     for a in (0, 2.1, 4.2)], axis=0) + np.maximum(np.abs(Z) - 0.3, 0) + np.maximum(R - 0.4, 0)
+    planes = (
+        np.min(
+            [
+                np.abs(-np.sin(a) * X + np.cos(a) * Y) + np.maximum(-(np.cos(a) * X + np.sin(a) * Y), 0)
+                for a in (0, 2.1, 4.2)
+            ],
+            axis=0,
+        )
+        + np.maximum(np.abs(Z) - 0.3, 0)
+        + np.maximum(R - 0.4, 0)
+    )
     assert collapse_to_sheet(planes < 0.05, planes, 0.025).euler == 1
 
 
@@ -49,7 +59,7 @@ def test_disc_sheet_is_one_layer_on_the_axis_reaching_the_rim():
     # one layer: the placed faces cover the disc once (area of the disc, not twice it)
     tri = sheet.vertices[sheet.faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
-    true_area = np.pi * 0.4 ** 2 * (96 / (2 * np.pi)) * np.sin(2 * np.pi / 96)  # the 96-gon
+    true_area = np.pi * 0.4**2 * (96 / (2 * np.pi)) * np.sin(2 * np.pi / 96)  # the 96-gon
     assert abs(area - true_area) < 0.05 * true_area
     rim = np.unique(single_face_edges(sheet.faces))
     assert np.hypot(*sheet.vertices[rim, :2].T).min() > 0.4 - 3 * H  # its rim is the disc's rim

@@ -1,6 +1,7 @@
 """The field's supervision against known answers: winding numbers and distances of a sphere, normals oriented
 back from random signs (a thin-walled cup included), medial radii of a sphere, a slab and a torus, the routes'
 targets on the torus, and the degradations that make a raw scan."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,8 +9,13 @@ import pytest
 import trimesh
 
 from qmdf.fields.supervision import build_supervision, choose_route
-from qmdf.geometry.inside import (mesh_distance, mesh_signed_distance, mesh_winding_number, points_distance,
-                                  points_winding_number)
+from qmdf.geometry.inside import (
+    mesh_distance,
+    mesh_signed_distance,
+    mesh_winding_number,
+    points_distance,
+    points_winding_number,
+)
 from qmdf.geometry.medial_radius import inward_medial_radii
 from qmdf.geometry.normals import estimate_oriented_normals, orient_by_winding
 from qmdf.geometry.shapes import TORUS_R, TORUS_r, get_shape, torus_sdf
@@ -150,12 +156,15 @@ def test_degradations_drop_normals_and_noise_keeps_them_with_their_points():
     assert not np.allclose(moved.points, p.points) and np.array_equal(moved.normals, p.normals)
 
 
-@pytest.mark.parametrize("extra,route", [
-    ((), "mesh"),
-    (("+sample.degradations.subsample.n=1500",), "oriented_points"),
-    (("+sample.degradations.subsample.n=1500", "+sample.degradations.drop_normals.enabled=true"), "raw_points"),
-    (("train.supervision=paper",), "paper"),
-])
+@pytest.mark.parametrize(
+    "extra,route",
+    [
+        ((), "mesh"),
+        (("+sample.degradations.subsample.n=1500",), "oriented_points"),
+        (("+sample.degradations.subsample.n=1500", "+sample.degradations.drop_normals.enabled=true"), "raw_points"),
+        (("train.supervision=paper",), "paper"),
+    ],
+)
 def test_the_route_follows_the_input_and_is_recorded(compose_cfg, tmp_path, extra, route):
     from qmdf.pipeline import Pipeline
 
@@ -190,7 +199,9 @@ def test_mat_radii_from_the_data_reach_the_surface():
         def evaluate(self, v):
             return {"sdf": -0.5 * np.full(len(v), TORUS_r), "mf": np.full(len(v), TORUS_r)}
 
-    assert np.allclose(mat_radii(core, "sdf", Half()), TORUS_r / 2) and np.allclose(mat_radii(core, "mf", Half()), TORUS_r)
+    assert np.allclose(mat_radii(core, "sdf", Half()), TORUS_r / 2) and np.allclose(
+        mat_radii(core, "mf", Half()), TORUS_r
+    )
     with pytest.raises(ValueError, match="needs the input"):
         mat_radii(core, "data")
 
@@ -211,8 +222,9 @@ def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surfa
         assert mesh.is_watertight and mesh.euler_number == 0 and mesh.volume > 0
         assert np.median(np.abs(torus_sdf(v))) < 2e-3
     proxy = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000)
-    points = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000,
-                               proxy="points")
+    points = build_supervision(
+        "oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000, proxy="points"
+    )
     assert proxy.stats["proxy"] == "poisson" and points.stats["proxy"] == "points"
     assert proxy.ray_origins is not None and len(proxy.ray_origins) == len(proxy.radii) > len(pts)
     known = np.isfinite(proxy.sdf)
@@ -231,8 +243,9 @@ def test_the_zero_level_can_follow_the_poisson_surface_instead_of_noisy_points()
     torus = get_shape("torus").mesh(128)
     pts, nrm = _samples(torus, 3000)
     noisy = pts + np.random.default_rng(1).normal(scale=0.006, size=pts.shape)
-    sup = build_supervision("oriented_points", noisy, nrm, np.random.default_rng(0), volume_samples=5000,
-                            zero_level="proxy")
+    sup = build_supervision(
+        "oriented_points", noisy, nrm, np.random.default_rng(0), volume_samples=5000, zero_level="proxy"
+    )
     assert sup.stats["zero_level"] == "proxy" and sup.surface is sup.ray_origins
     # noise of 0.006: the surface the field is asked to pass through is closer to the true torus (measured 2.6x)
     assert np.median(np.abs(torus_sdf(sup.surface))) < np.median(np.abs(torus_sdf(noisy))) / 2

@@ -1,5 +1,6 @@
 """The train stage on tiny settings: it learns, it saves a field that loads with weights_only=True, it
 resumes, it stops cleanly on divergence, and the medial field can be switched off (the paper's ablation)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,9 +12,17 @@ from qmdf.geometry.shapes import torus_sdf
 from qmdf.pipeline import Pipeline
 from qmdf.errors import QmdfError
 
-TINY = ["input.shape=torus", "input.shape_resolution=64", "pipeline.stages=[sample,train]", "train.surface_batch=512",
-        "train.backbone=mlp", "train.volume_samples=20000",
-        "train.volume_batch=512", "train.backbones.mlp.width=48", "train.backbones.mlp.depth=3"]
+TINY = [
+    "input.shape=torus",
+    "input.shape_resolution=64",
+    "pipeline.stages=[sample,train]",
+    "train.surface_batch=512",
+    "train.backbone=mlp",
+    "train.volume_samples=20000",
+    "train.volume_batch=512",
+    "train.backbones.mlp.width=48",
+    "train.backbones.mlp.depth=3",
+]
 
 
 def run(compose_cfg, tmp_path, *more, name="run"):
@@ -121,7 +130,9 @@ def test_divergence_stops_with_a_clear_message(compose_cfg, tmp_path):
 def test_bad_train_settings_are_listed(compose_cfg):
     from qmdf.config import validate
 
-    problems = validate(compose_cfg("train.backbone=hashgrid", "+train.losses.smooth.weight=1", "train.losses.surface.weight=-1"))
+    problems = validate(
+        compose_cfg("train.backbone=hashgrid", "+train.losses.smooth.weight=1", "train.losses.surface.weight=-1")
+    )
     keys = sorted(p.key for p in problems)
     assert keys == ["train.backbone", "train.losses.smooth", "train.losses.surface.weight"]
 
@@ -136,16 +147,27 @@ def test_grid_backbone_is_twice_differentiable_and_smooth_across_cells():
     assert torch.autograd.gradcheck(g.encode, (x,)) and torch.autograd.gradgradcheck(g.encode, (x,))
     # C1: the gradient is continuous across a cell face (linear blending would jump there)
     face = -0.6 + 1.2 * 3 / 16  # a face of the finest level
-    pts = torch.tensor([[face - 1e-10, 0.013, -0.021], [face + 1e-10, 0.013, -0.021]], dtype=torch.float64, requires_grad=True)
-    jac = torch.stack([torch.autograd.grad(g.encode(pts)[:, k].sum(), pts)[0] for k in range(g.cfg.levels * g.cfg.features)])
+    pts = torch.tensor(
+        [[face - 1e-10, 0.013, -0.021], [face + 1e-10, 0.013, -0.021]], dtype=torch.float64, requires_grad=True
+    )
+    jac = torch.stack(
+        [torch.autograd.grad(g.encode(pts)[:, k].sum(), pts)[0] for k in range(g.cfg.levels * g.cfg.features)]
+    )
     assert torch.allclose(jac[:, 0], jac[:, 1], atol=1e-6) and jac.abs().max() > 1
     # the dense coarse level and the hashed fine level both index inside their part of the table
     assert bool(g.dense[0]) and not bool(g.dense[-1])
 
 
 def test_grid_backbone_trains_through_the_pipeline(compose_cfg, tmp_path):
-    res = run(compose_cfg, tmp_path, "train.steps=150", "train.backbone=grid", "train.backbones.grid.width=32",
-              "train.backbones.grid.finest_resolution=32", "train.picture=false")
+    res = run(
+        compose_cfg,
+        tmp_path,
+        "train.steps=150",
+        "train.backbone=grid",
+        "train.backbones.grid.width=32",
+        "train.backbones.grid.finest_resolution=32",
+        "train.picture=false",
+    )
     assert res.load("field").meta["backbone"] == "grid"
     hist = res.load("training")["history"]
     assert hist[-1]["loss/surface"] < 0.3 * hist[0]["loss/surface"]
@@ -171,8 +193,9 @@ def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path):
     # a point file without normals: they are estimated and oriented (the raw-points route), and the plate stays thin
     pts = tmp_path / "plate.xyz"
     np.savetxt(pts, res.load("points").points)
-    cloud = run(compose_cfg, tmp_path, f"input.path={pts}", "train.steps=300", "train.losses.normal.weight=100",
-                name="cloud")
+    cloud = run(
+        compose_cfg, tmp_path, f"input.path={pts}", "train.steps=300", "train.losses.normal.weight=100", name="cloud"
+    )
     assert cloud.load("training")["supervision"]["route"] == "raw_points"
     # a third of the estimated normals are flipped on this plate: the Poisson surface does not close, and the
     # targets come from the points
@@ -194,7 +217,9 @@ def test_same_seed_same_field(compose_cfg, tmp_path):
 
 
 @pytest.mark.parametrize("signum, code", [(2, 130), (15, 143)])
-def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_field(compose_cfg, tmp_path, signum, code):
+def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_field(
+    compose_cfg, tmp_path, signum, code
+):
     """Ctrl-C (SIGINT) or a scheduler's SIGTERM at step 30 of 80 with checkpoints only every 50: the run ends as
     interrupted with 128 + the signal, keeps a checkpoint of step 30 (it once lost all work since the last periodic
     one and exited 1 with "SystemExit: 1" in the manifest), and the rerun resumes there and ends with the weights
@@ -242,8 +267,10 @@ def test_another_backbones_settings_do_not_retrain(compose_cfg, tmp_path):
     from qmdf.pipeline import Pipeline
 
     base = ["input.shape=torus", "pipeline.stages=[sample,train]"]
-    runs = [Pipeline(compose_cfg(*base, *extra), tmp_path / f"run{i}", tmp_path).run()
-            for i, extra in enumerate(([], ["train.backbones.grid.levels=4"], ["train.backbones.mlp.width=16"]))]
+    runs = [
+        Pipeline(compose_cfg(*base, *extra), tmp_path / f"run{i}", tmp_path).run()
+        for i, extra in enumerate(([], ["train.backbones.grid.levels=4"], ["train.backbones.mlp.width=16"]))
+    ]
     status = [[s["status"] for s in r.manifest["stages"] if s["name"] == "train"][0] for r in runs]
     assert status == ["ran", "cached", "ran"]
     # a finished run opens from its folder alone, as a later script would

@@ -1,4 +1,5 @@
 """``python -m qmdf.bench SUITE [options]``: run one benchmark suite and print its table."""
+
 from __future__ import annotations
 
 import sys
@@ -19,8 +20,14 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     usage = f"usage: python -m qmdf.bench {{{','.join(SUITES)}}} [--json PATH] [options]   (SUITE --help for each)"
     if argv and argv[0] in ("-h", "--help"):
-        print(usage + "\n\n" + "\n".join(f"  {name:<11} {importlib.import_module(mod).__doc__.strip().splitlines()[0]}"
-                                          for name, mod in SUITES.items()))
+        print(
+            usage
+            + "\n\n"
+            + "\n".join(
+                f"  {name:<11} {importlib.import_module(mod).__doc__.strip().splitlines()[0]}"
+                for name, mod in SUITES.items()
+            )
+        )
         return 0
     if not argv or argv[0] not in SUITES:
         print(usage, file=sys.stderr)

@@ -1,4 +1,5 @@
 """Run one pipeline in a child process and measure it: its own wall time and peak memory."""
+
 from __future__ import annotations
 
 import os

@@ -9,6 +9,7 @@
 3. A multirun of M jobs on 2 joblib workers sharing one cache (the same seed, so every job wants the same
    entries at once): jobs complete, and every cache entry holds the files its manifest records, byte for byte.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,8 +41,12 @@ def _weights(run_dir: Path) -> dict:
 
 def interrupt_trials(out: Path, trials: int, timeout: float = 600) -> list[dict]:
     ref_dir = out / "reference"
-    subprocess.run(_qmdf([*TRAIN, f"hydra.run.dir={ref_dir}", f"cache.dir={out / 'cache_ref'}"]), check=True,
-                   capture_output=True, timeout=timeout)
+    subprocess.run(
+        _qmdf([*TRAIN, f"hydra.run.dir={ref_dir}", f"cache.dir={out / 'cache_ref'}"]),
+        check=True,
+        capture_output=True,
+        timeout=timeout,
+    )
     reference = _weights(ref_dir)
     rows = []
     for i in range(trials):
@@ -57,8 +62,14 @@ def interrupt_trials(out: Path, trials: int, timeout: float = 600) -> list[dict]
         stopped = proc.wait(timeout=timeout)
         rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
         manifest = json.loads((run_dir / "manifest.json").read_text())
-        row = {"trial": i, "signal": signal.Signals(sig).name, "stopped_exit": stopped, "rerun_exit": rerun.returncode,
-               "status": manifest.get("status"), "resumed": "resuming from" in rerun.stderr + rerun.stdout}
+        row = {
+            "trial": i,
+            "signal": signal.Signals(sig).name,
+            "stopped_exit": stopped,
+            "rerun_exit": rerun.returncode,
+            "status": manifest.get("status"),
+            "resumed": "resuming from" in rerun.stderr + rerun.stdout,
+        }
         if rerun.returncode == 0:
             training = json.loads(next(run_dir.glob("*_train/training.json")).read_text())
             weights = _weights(run_dir)
@@ -113,8 +124,13 @@ def fuzz_readers(per_format: int, seed: int = 0) -> dict:
             except Exception as exc:  # noqa: BLE001 - what the bench counts
                 counts["crashed"] += 1
                 crashes.append(f"{suffix}: {type(exc).__name__}: {exc}"[:200])
-    return {**counts, "per_format": per_format, "formats": len(valid), "crashes": crashes[:10],
-            "error_classes": dict(sorted(classes.items(), key=lambda kv: -kv[1]))}
+    return {
+        **counts,
+        "per_format": per_format,
+        "formats": len(valid),
+        "crashes": crashes[:10],
+        "error_classes": dict(sorted(classes.items(), key=lambda kv: -kv[1])),
+    }
 
 
 def multirun_cache(out: Path, jobs: int, timeout: float = 3600) -> dict:
@@ -122,9 +138,22 @@ def multirun_cache(out: Path, jobs: int, timeout: float = 3600) -> dict:
 
     sweep, cache = out / "multirun", out / "cache_multirun"
     seeds = ",".join(["0"] * jobs)
-    proc = subprocess.run(_qmdf(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"seed={seeds}",
-                                 "+debug=fast", f"hydra.sweep.dir={sweep}", f"cache.dir={cache}"]),
-                          capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(
+        _qmdf(
+            [
+                "-m",
+                "hydra/launcher=joblib",
+                "hydra.launcher.n_jobs=2",
+                f"seed={seeds}",
+                "+debug=fast",
+                f"hydra.sweep.dir={sweep}",
+                f"cache.dir={cache}",
+            ]
+        ),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     manifests = [json.loads(p.read_text()) for p in sweep.glob("*/manifest.json")]
     complete = sum(m.get("status") == "complete" for m in manifests)
     mismatched = 0
@@ -136,13 +165,22 @@ def multirun_cache(out: Path, jobs: int, timeout: float = 3600) -> dict:
                 if not (entry / "artifacts.json").exists() or not cached.exists() or file_digest(cached) != a["sha256"]:
                     mismatched += 1
     leftovers = [p.name for p in cache.rglob("*") if p.name.endswith((".work", ".partial")) or ".tmp" in p.name]
-    return {"jobs": jobs, "exit": proc.returncode, "complete": complete, "artifacts_not_matching_cache": mismatched,
-            "leftover_scratch": len(leftovers)}
+    return {
+        "jobs": jobs,
+        "exit": proc.returncode,
+        "complete": complete,
+        "artifacts_not_matching_cache": mismatched,
+        "leftover_scratch": len(leftovers),
+    }
 
 
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="python -m qmdf.bench faults", description=__doc__.split("\n\n")[0],
-                                 epilog=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m qmdf.bench faults",
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--trials", type=int, default=9, help="interrupt/resume trials (signals in turn)")
     ap.add_argument("--fuzz", type=int, default=500, help="fuzzed files per input format")
     ap.add_argument("--jobs", type=int, default=100, help="jobs of the shared-cache multirun")
@@ -154,23 +192,34 @@ def main(argv: list[str]) -> int:
     if args.trials:
         report["interrupts"] = rows = interrupt_trials(args.out, args.trials)
         for r in rows:
-            print(f"trial {r['trial']}: {r['signal']:<8} stopped with {r['stopped_exit']:>4}, rerun {r['rerun_exit']} "
-                  f"({r['status']}, resumed {r['resumed']}), steps {r.get('steps')}, "
-                  f"max weight difference to the uninterrupted field {r.get('max_weight_diff', float('nan')):.2e}")
+            print(
+                f"trial {r['trial']}: {r['signal']:<8} stopped with {r['stopped_exit']:>4}, rerun {r['rerun_exit']} "
+                f"({r['status']}, resumed {r['resumed']}), steps {r.get('steps')}, "
+                f"max weight difference to the uninterrupted field {r.get('max_weight_diff', float('nan')):.2e}"
+            )
     if args.fuzz:
         report["fuzz"] = f = fuzz_readers(args.fuzz)
-        print(f"fuzzed readers: {f['formats'] * f['per_format']} files: {f['read']} read, {f['refused']} refused with "
-              f"one line, {f['crashed']} crashed" + "".join(f"\n  crash: {c}" for c in f["crashes"])
-              + "".join(f"\n  {n:>5}  {k}" for k, n in f["error_classes"].items()))
+        print(
+            f"fuzzed readers: {f['formats'] * f['per_format']} files: {f['read']} read, {f['refused']} refused with "
+            f"one line, {f['crashed']} crashed"
+            + "".join(f"\n  crash: {c}" for c in f["crashes"])
+            + "".join(f"\n  {n:>5}  {k}" for k, n in f["error_classes"].items())
+        )
     if args.jobs:
         report["multirun"] = m = multirun_cache(args.out, args.jobs)
-        print(f"multirun: {m['jobs']} jobs on 2 workers, one cache: exit {m['exit']}, {m['complete']} complete, "
-              f"{m['artifacts_not_matching_cache']} artifacts differing from their cache entry, "
-              f"{m['leftover_scratch']} scratch folders left")
+        print(
+            f"multirun: {m['jobs']} jobs on 2 workers, one cache: exit {m['exit']}, {m['complete']} complete, "
+            f"{m['artifacts_not_matching_cache']} artifacts differing from their cache entry, "
+            f"{m['leftover_scratch']} scratch folders left"
+        )
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
-    ok = all(r["rerun_exit"] == 0 and r.get("max_weight_diff", 1) < 1e-5 for r in report.get("interrupts", [])) \
-        and report.get("fuzz", {}).get("crashed", 0) == 0 \
-        and (not args.jobs or (report["multirun"]["complete"] == args.jobs
-                               and report["multirun"]["artifacts_not_matching_cache"] == 0))
+    ok = (
+        all(r["rerun_exit"] == 0 and r.get("max_weight_diff", 1) < 1e-5 for r in report.get("interrupts", []))
+        and report.get("fuzz", {}).get("crashed", 0) == 0
+        and (
+            not args.jobs
+            or (report["multirun"]["complete"] == args.jobs and report["multirun"]["artifacts_not_matching_cache"] == 0)
+        )
+    )
     return 0 if ok else 1

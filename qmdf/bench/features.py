@@ -10,6 +10,7 @@ boundary (its fold edges) before and after, the fraction of sharp-edge samples w
 issue's target: over 90% after), the fraction within 0.01 of any point of the MAT, CD / HD and the boundary
 smoothness of both MATs, and the time.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,11 +27,20 @@ PROCEDURAL = ("box", "dodecahedron")
 # ablations on the box: the paper's losses and energy alone (no bisector samples, no feature pull, no zip); the
 # point-cloud route (two-plane fits of the input points and the paper's membrane boundary -> march -> QEM)
 # instead of the mesh's dihedral angles
-VARIANTS = (("box-paper", ["input.shape=box", "feature_retrain.bisector_weight=0", "contract.feature_weight=0",
-                           "contract.zip_weight=0"]),
-            ("box-detected", ["input.shape=box", "feature_detect.source=field"]))
-DATA_MODELS = ("cad/block.obj", "cad/sharp_sphere.off", "cad/abc_00000068.obj", "cad/abc_00000125.obj",
-               "cad/abc_00000329.obj")
+VARIANTS = (
+    (
+        "box-paper",
+        ["input.shape=box", "feature_retrain.bisector_weight=0", "contract.feature_weight=0", "contract.zip_weight=0"],
+    ),
+    ("box-detected", ["input.shape=box", "feature_detect.source=field"]),
+)
+DATA_MODELS = (
+    "cad/block.obj",
+    "cad/sharp_sphere.off",
+    "cad/abc_00000068.obj",
+    "cad/abc_00000125.obj",
+    "cad/abc_00000329.obj",
+)
 # point clouds of CAD models (features by the point-cloud route), scored against the model's mesh
 CLOUD_MODELS = (("block-cloud1000", "pointclouds/sparse/block_1000.xyz", "cad/block.obj"),)
 
@@ -79,18 +89,30 @@ def score(run_dir: Path, manifest: dict, reference: Path | None = None, after: P
         mat = read_ma(export_dir / "mat.ma")
         d = boundary_distance(sharp, mat)
         recon = export_dir / "reconstruction.ply"
-        m = score_mat(mat, v, f, samples=20_000, recon_mesh=trimesh.load(recon, process=False) if recon.exists() else None)
+        m = score_mat(
+            mat, v, f, samples=20_000, recon_mesh=trimesh.load(recon, process=False) if recon.exists() else None
+        )
         # the MAT may reach an edge without folding flat there (its tip a V): within 0.01 of any MAT point
-        reach = point_to_mesh_distance(sharp, mat.vertices, mat.faces) if len(mat.faces) else np.full(len(sharp), np.inf)
-        row.update({f"sharp_within_0.01_{tag}": float(np.mean(d < 0.01)), f"sharp_mean_{tag}": float(np.mean(d)),
-                    f"sharp_reached_0.01_{tag}": float(np.mean(reach < 0.01)),
-                    f"cd_{tag}": m["chamfer"], f"hd_{tag}": m["hausdorff"], f"smoothness_{tag}": m["boundary_smoothness"],
-                    f"chi_{tag}": m["chi"]})
+        reach = (
+            point_to_mesh_distance(sharp, mat.vertices, mat.faces) if len(mat.faces) else np.full(len(sharp), np.inf)
+        )
+        row.update(
+            {
+                f"sharp_within_0.01_{tag}": float(np.mean(d < 0.01)),
+                f"sharp_mean_{tag}": float(np.mean(d)),
+                f"sharp_reached_0.01_{tag}": float(np.mean(reach < 0.01)),
+                f"cd_{tag}": m["chamfer"],
+                f"hd_{tag}": m["hausdorff"],
+                f"smoothness_{tag}": m["boundary_smoothness"],
+                f"chi_{tag}": m["chi"],
+            }
+        )
     return row
 
 
-def run_model(name: str, override: list[str], out: Path, overrides: list[str], timeout: float,
-              reference: Path | None = None) -> dict:
+def run_model(
+    name: str, override: list[str], out: Path, overrides: list[str], timeout: float, reference: Path | None = None
+) -> dict:
     from qmdf.bench.child import last_error, run_child
 
     run_dir = out / name
@@ -128,8 +150,11 @@ def recontracted_row(name: str, run_dir: Path, out: Path, overrides: list[str], 
         after = recontract(run_dir, out / name, overrides)
     except QmdfError as exc:
         return {"shape": name, "note": str(exc)}
-    return {"recontract_s": round(time.perf_counter() - t0, 1), "recontract": overrides,
-            **scored_row(name, run_dir, reference, after)}
+    return {
+        "recontract_s": round(time.perf_counter() - t0, 1),
+        "recontract": overrides,
+        **scored_row(name, run_dir, reference, after),
+    }
 
 
 def main(argv: list[str]) -> int:
@@ -143,10 +168,16 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--timeout", type=float, default=3600)
     ap.add_argument("overrides", nargs="*")
     ap.add_argument("--reuse", action="store_true", help="reuse cached stage results (timings then mean nothing)")
-    ap.add_argument("--rescore", type=Path, help="score the runs of an earlier bench (its dated folder) again, running nothing")
-    ap.add_argument("--recontract", type=Path, help="run the last contraction of an earlier bench's runs (its dated "
-                    "folder) again from their saved fields and coverings, with the contract.* overrides given, and "
-                    "score that as 'after'")
+    ap.add_argument(
+        "--rescore", type=Path, help="score the runs of an earlier bench (its dated folder) again, running nothing"
+    )
+    ap.add_argument(
+        "--recontract",
+        type=Path,
+        help="run the last contraction of an earlier bench's runs (its dated "
+        "folder) again from their saved fields and coverings, with the contract.* overrides given, and "
+        "score that as 'after'",
+    )
     args = ap.parse_args(argv)
     if args.rescore and args.recontract:
         ap.error("--rescore and --recontract do not go together")
@@ -156,8 +187,11 @@ def main(argv: list[str]) -> int:
     models = [(s, [f"input.shape={s}"], None) for s in PROCEDURAL]
     models += [(name, override, None) for name, override in VARIANTS]
     models += [(Path(m).stem, [f"input.path={args.data / m}"], None) for m in DATA_MODELS if (args.data / m).exists()]
-    models += [(name, [f"input.path={args.data / cloud}"], args.data / mesh) for name, cloud, mesh in CLOUD_MODELS
-               if (args.data / cloud).exists() and (args.data / mesh).exists()]
+    models += [
+        (name, [f"input.path={args.data / cloud}"], args.data / mesh)
+        for name, cloud, mesh in CLOUD_MODELS
+        if (args.data / cloud).exists() and (args.data / mesh).exists()
+    ]
     if args.only:
         keep = set(args.only.split(","))
         models = [m for m in models if m[0] in keep]
@@ -176,24 +210,32 @@ def main(argv: list[str]) -> int:
             rows.append(run_model(name, override, out, args.overrides, args.timeout, reference))
     if args.recontract:
         given = " ".join(recontract_overrides) or "its own config"
-        print(f"after: the last contraction of {args.recontract} run again with {given}; "
-              "wall s: that contraction and its export")
-    head = (f"{'shape':<16}{'within .01 b/a':>16}{'reached b/a':>14}{'mean dist b/a':>20}{'CD b/a':>20}{'HD b/a':>20}"
-            f"{'C_avg b/a':>14}{'feat s':>8}{'wall s':>8}")
+        print(
+            f"after: the last contraction of {args.recontract} run again with {given}; "
+            "wall s: that contraction and its export"
+        )
+    head = (
+        f"{'shape':<16}{'within .01 b/a':>16}{'reached b/a':>14}{'mean dist b/a':>20}{'CD b/a':>20}{'HD b/a':>20}"
+        f"{'C_avg b/a':>14}{'feat s':>8}{'wall s':>8}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
         if "note" in r:
             print(f"{r['shape']:<16} failed: {r['note']}")
             continue
-        print(f"{r['shape']:<16}{r['sharp_within_0.01_before']:>8.2f}/{r['sharp_within_0.01_after']:<7.2f}"
-              f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}"
-              f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
-              f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
-              f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s', r.get('recontract_s')), '.1f'):>8}")
-    print("\nwithin .01: share of the input's sharp-edge samples within 0.01 of the MAT's boundary (its fold edges; "
-          "unit box), before / after enhancement; reached: within 0.01 of any point of the MAT (a tip that ends in a V "
-          "reaches the edge but does not fold there); CD / HD of each MAT's reconstruction against the input.")
+        print(
+            f"{r['shape']:<16}{r['sharp_within_0.01_before']:>8.2f}/{r['sharp_within_0.01_after']:<7.2f}"
+            f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}"
+            f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
+            f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
+            f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s', r.get('recontract_s')), '.1f'):>8}"
+        )
+    print(
+        "\nwithin .01: share of the input's sharp-edge samples within 0.01 of the MAT's boundary (its fold edges; "
+        "unit box), before / after enhancement; reached: within 0.01 of any point of the MAT (a tip that ends in a V "
+        "reaches the edge but does not fold there); CD / HD of each MAT's reconstruction against the input."
+    )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
     return 0

@@ -8,6 +8,7 @@ Chamfer distance of the zero level set to the true surface. Also the paper's Fig
 with and without the medial field, Chamfer to the full cyclide) and the paper route with and without pinning.
 Targets (issue 4): training < 3 min, centredness < 2e-3, Chamfer < 2e-3, all in the unit box.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,10 +37,18 @@ class Case:
 def default_cases(shapes, backbones) -> list[Case]:
     cases = [Case(s, s, b) for s in shapes for b in backbones]
     cases.append(Case("torus, paper route", "torus", "mlp", ["train.supervision=paper"]))
-    cases.append(Case("torus, paper, no pinning", "torus", "mlp",
-                      ["train.supervision=paper", "train.paper_losses.mf_maximal.weight=0"]))
+    cases.append(
+        Case(
+            "torus, paper, no pinning",
+            "torus",
+            "mlp",
+            ["train.supervision=paper", "train.paper_losses.mf_maximal.weight=0"],
+        )
+    )
     cases.append(Case("cut cyclide, MF", "cyclide", backbones[0], ["+experiment=cut_cyclide"]))
-    cases.append(Case("cut cyclide, w/o MF", "cyclide", backbones[0], ["+experiment=cut_cyclide", "train.medial_field=false"]))
+    cases.append(
+        Case("cut cyclide, w/o MF", "cyclide", backbones[0], ["+experiment=cut_cyclide", "train.medial_field=false"])
+    )
     return cases
 
 
@@ -148,9 +157,19 @@ def run_case(case: Case, out: Path, n_points: int, overrides: list[str], timeout
     from qmdf.fields.field import Field
 
     run_dir = out / case.label.replace(", ", "_").replace(" ", "_").replace("/", "_")
-    cmd = [sys.executable, "-m", "qmdf", f"input.shape={case.shape}", "input.shape_resolution=256",
-           f"sample.n_points={n_points}", "pipeline.stages=[sample,train]", f"train.backbone={case.backbone}",
-           f"hydra.run.dir={run_dir}", *overrides, *case.overrides]
+    cmd = [
+        sys.executable,
+        "-m",
+        "qmdf",
+        f"input.shape={case.shape}",
+        "input.shape_resolution=256",
+        f"sample.n_points={n_points}",
+        "pipeline.stages=[sample,train]",
+        f"train.backbone={case.backbone}",
+        f"hydra.run.dir={run_dir}",
+        *overrides,
+        *case.overrides,
+    ]
     code, wall, peak = run_child(cmd, run_dir, timeout)
     row: dict = {"shape": case.label, "backbone": case.backbone, "wall_s": round(wall, 1), "peak_mb": round(peak)}
     manifest = json.loads((run_dir / "manifest.json").read_text()) if (run_dir / "manifest.json").exists() else {}
@@ -168,20 +187,26 @@ def run_case(case: Case, out: Path, n_points: int, overrides: list[str], timeout
 
 
 def print_table(rows: list[dict]) -> None:
-    head = f"{'shape':<22}{'backbone':<9}{'train s':>8}{'peak MB':>8}{'sdf err':>9}{'|grad|':>7}{'q on axis':>10}" \
-           f"{'centred':>9}{'c p95':>9}{'chamfer':>9}"
+    head = (
+        f"{'shape':<22}{'backbone':<9}{'train s':>8}{'peak MB':>8}{'sdf err':>9}{'|grad|':>7}{'q on axis':>10}"
+        f"{'centred':>9}{'c p95':>9}{'chamfer':>9}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
         if "note" in r:
             print(f"{r['shape']:<22}{r['backbone']:<9} failed: {r['note']}")
             continue
-        print(f"{r['shape']:<22}{r['backbone']:<9}{r['train_s']:>8.1f}{r['peak_mb']:>8}{fmt(r.get('sdf_err'), '9.2e')}"
-              f"{fmt(r.get('grad_norm'), '7.3f')}{fmt(r.get('q_on_axis'), '10.2e')}{fmt(r.get('centredness'), '9.2e')}"
-              f"{fmt(r.get('centredness_p95'), '9.2e')}{fmt(r.get('chamfer'), '9.2e')}")
-    print("\nunit box. sdf err: mean |sdf - exact| inside; |grad|: mean |grad sdf| inside; centred: mean distance "
-          "to the true axis of inside points after descending -grad q (paper: 6.0e-4); chamfer: zero level set "
-          "(marching cubes 128^3) to the true (for the cut cyclide: the full) surface.")
+        print(
+            f"{r['shape']:<22}{r['backbone']:<9}{r['train_s']:>8.1f}{r['peak_mb']:>8}{fmt(r.get('sdf_err'), '9.2e')}"
+            f"{fmt(r.get('grad_norm'), '7.3f')}{fmt(r.get('q_on_axis'), '10.2e')}{fmt(r.get('centredness'), '9.2e')}"
+            f"{fmt(r.get('centredness_p95'), '9.2e')}{fmt(r.get('chamfer'), '9.2e')}"
+        )
+    print(
+        "\nunit box. sdf err: mean |sdf - exact| inside; |grad|: mean |grad sdf| inside; centred: mean distance "
+        "to the true axis of inside points after descending -grad q (paper: 6.0e-4); chamfer: zero level set "
+        "(marching cubes 128^3) to the true (for the cut cyclide: the full) surface."
+    )
 
 
 def main(argv: list[str]) -> int:

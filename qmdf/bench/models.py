@@ -5,6 +5,7 @@ holes, SRB scans, sparse / noisy / non-uniform / incomplete point clouds (from `
 cleanly when it is absent), and the procedural shapes. Each model runs ``python -m qmdf`` in its own process,
 so wall time per stage and peak memory are its own. The paper's CD / HD / chi stand beside ours.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,7 +23,10 @@ from qmdf.rundir import conf_dir
 
 #: The paper's Table 3 (CD and HD x 1e-3, unit box; chi of the medial structure).
 PAPER = {
-    "bunny": (1.86, 12.56, 1), "kitten": (1.58, 19.96, 0), "block": (0.95, 21.41, -2), "sharp_sphere": (1.67, 19.69, 1),
+    "bunny": (1.86, 12.56, 1),
+    "kitten": (1.58, 19.96, 0),
+    "block": (0.95, 21.41, -2),
+    "sharp_sphere": (1.67, 19.69, 1),
 }
 PROCEDURAL = ("teacup", "torus", "box", "ellipsoid", "dodecahedron", "cyclide")
 #: Point clouds sampled from a mesh of the data, in the same coordinates (checked: block_1000's points lie within
@@ -54,10 +58,20 @@ def discover(data: Path) -> list[Model]:
             chi = int(counts["chi"]) // 2 if closed else None
             name = Path(row["file"]).stem.replace("-", "_")
             source = data / SOURCES[name] if name in SOURCES else None
-            models.append(Model(name, row["file"].split("/")[0] + ("/" + row["file"].split("/")[1] if row["kind"] == "pointcloud" else ""),
-                                f"input.path={data / row['file']}", chi,
-                                str(source) if source is not None and source.exists() else None))
-        by_file = {str(data / row): m for row, m in zip((r["file"] for r in csv.DictReader(open(manifest), delimiter="\t")), models)}
+            models.append(
+                Model(
+                    name,
+                    row["file"].split("/")[0]
+                    + ("/" + row["file"].split("/")[1] if row["kind"] == "pointcloud" else ""),
+                    f"input.path={data / row['file']}",
+                    chi,
+                    str(source) if source is not None and source.exists() else None,
+                )
+            )
+        by_file = {
+            str(data / row): m
+            for row, m in zip((r["file"] for r in csv.DictReader(open(manifest), delimiter="\t")), models)
+        }
         for m in models:  # a cloud's medial axis has its source's chi
             if m.reference and m.reference in by_file:
                 m.expected_chi = by_file[m.reference].expected_chi
@@ -77,8 +91,14 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
         cmd.append(f"evaluate.reference={model.reference}")
     returncode, wall, peak_mb = run_child(cmd, run_dir, timeout)
     stderr = (run_dir / "bench.stderr").read_text()
-    row: dict = {"model": model.name, "category": model.category, "expected_chi": model.expected_chi,
-                 "wall_s": round(wall, 1), "peak_mb": peak_mb, "returncode": returncode}
+    row: dict = {
+        "model": model.name,
+        "category": model.category,
+        "expected_chi": model.expected_chi,
+        "wall_s": round(wall, 1),
+        "peak_mb": peak_mb,
+        "returncode": returncode,
+    }
     manifest = run_dir / "manifest.json"
     if manifest.exists():
         m = json.loads(manifest.read_text())
@@ -91,7 +111,10 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
             row["note"] = "no MAT: not available in this version: " + ", ".join(m["unavailable_stages"])
         if m.get("error"):
             row["note"] = m["error"].splitlines()[0][:120]
-        metrics = next((run_dir / s["artifacts"]["metrics"]["path"] for s in m.get("stages", []) if "metrics" in s["artifacts"]), None)
+        metrics = next(
+            (run_dir / s["artifacts"]["metrics"]["path"] for s in m.get("stages", []) if "metrics" in s["artifacts"]),
+            None,
+        )
         if metrics is not None:
             mm = json.loads(metrics.read_text())
             row.update(cd=mm["chamfer"], hd=mm["hausdorff"], chi=mm["chi"], smoothness=mm["boundary_smoothness"])
@@ -103,8 +126,14 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
             row["seams"] = json.loads(arts["sheet_stats"].read_text())["after"]["seam_edges"]
         if metrics is not None and "membrane_mat" in arts and "surface" in arts:
             row.update(membrane_scores(arts["membrane_mat"], arts["surface"]))
-        training = next((run_dir / s["artifacts"]["training"]["path"] for s in m.get("stages", [])
-                         if s["name"] == "train" and "training" in s["artifacts"]), None)
+        training = next(
+            (
+                run_dir / s["artifacts"]["training"]["path"]
+                for s in m.get("stages", [])
+                if s["name"] == "train" and "training" in s["artifacts"]
+            ),
+            None,
+        )
         if training is not None:
             row["route"] = (json.loads(training.read_text()).get("supervision") or {}).get("route")
     else:
@@ -136,26 +165,36 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def print_table(rows: list[dict]) -> None:
-    head = f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}" \
-           f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}" \
-           "  stages (s) / note"
+    head = (
+        f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}"
+        f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}"
+        "  stages (s) / note"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
-        paper = f"{_fmt(r.get('paper_cd'), 1e3)}/{_fmt(r.get('paper_hd'), 1e3)}/{_fmt(r.get('paper_chi'))}" if "paper_cd" in r else "-"
+        paper = (
+            f"{_fmt(r.get('paper_cd'), 1e3)}/{_fmt(r.get('paper_hd'), 1e3)}/{_fmt(r.get('paper_chi'))}"
+            if "paper_cd" in r
+            else "-"
+        )
         stages = " ".join(f"{k}={v:.1f}" for k, v in (r.get("stage_s") or {}).items())
-        print(f"{r['model']:<28}{r['category']:<26}{r.get('route') or '-':<16}{_fmt(r.get('sign'), 1, 4):>7}"
-              f"{_fmt(r.get('grad_inside'), 1, 3):>7}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
-              f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}"
-              f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}"
-              f"{_fmt(r.get('membrane_cd'), 1e3) + '/' + _fmt(r.get('membrane_hd'), 1e3):>13}{paper:>18}"
-              f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  {stages}{' | ' + r['note'] if r.get('note') else ''}")
-    print("\nCD / HD: exact point-to-surface distances, (mean R->G + mean G->R)/2 and the larger max, unit box "
-          "(see qmdf.geometry.metrics.CD_DEFINITION); exp: chi the input's genus implies for its medial axis.\n"
-          "route: the field's supervision; sign: share of 100k volume samples in the unit box whose learned sign agrees "
-          "with the reference mesh's winding number; |grad|: mean |grad sdf| inside (1 is metric).\n"
-          "V / F / seams: the single sheet's vertices, faces and edges of three or more faces; membr CD/HD (e-3): the "
-          "contracted membrane's reconstruction, which the sheet replaces.")
+        print(
+            f"{r['model']:<28}{r['category']:<26}{r.get('route') or '-':<16}{_fmt(r.get('sign'), 1, 4):>7}"
+            f"{_fmt(r.get('grad_inside'), 1, 3):>7}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
+            f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}"
+            f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}"
+            f"{_fmt(r.get('membrane_cd'), 1e3) + '/' + _fmt(r.get('membrane_hd'), 1e3):>13}{paper:>18}"
+            f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  {stages}{' | ' + r['note'] if r.get('note') else ''}"
+        )
+    print(
+        "\nCD / HD: exact point-to-surface distances, (mean R->G + mean G->R)/2 and the larger max, unit box "
+        "(see qmdf.geometry.metrics.CD_DEFINITION); exp: chi the input's genus implies for its medial axis.\n"
+        "route: the field's supervision; sign: share of 100k volume samples in the unit box whose learned sign agrees "
+        "with the reference mesh's winding number; |grad|: mean |grad sdf| inside (1 is metric).\n"
+        "V / F / seams: the single sheet's vertices, faces and edges of three or more faces; membr CD/HD (e-3): the "
+        "contracted membrane's reconstruction, which the sheet replaces."
+    )
 
 
 def main(argv: list[str]) -> int:

@@ -1,6 +1,7 @@
 """Run a finished pipeline's last contraction again, from its saved field, covering and feature points, with
 ``contract.*`` overrides: an A/B of the contraction on identical inputs (training is not bit-reproducible,
 so two full runs differ by more than many contraction settings do)."""
+
 from __future__ import annotations
 
 import json
@@ -15,7 +16,9 @@ from qmdf.errors import QmdfError
 
 def _latest_before(stages: list[dict], artifact: str, index: int) -> str | None:
     """The path of ``artifact`` as the stage at ``index`` read it: the latest stage before it that made one."""
-    made = [s["artifacts"][artifact]["path"] for s in stages if s["index"] < index and artifact in s.get("artifacts", {})]
+    made = [
+        s["artifacts"][artifact]["path"] for s in stages if s["index"] < index and artifact in s.get("artifacts", {})
+    ]
     return made[-1] if made else None
 
 
@@ -47,8 +50,9 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     if sources["field"] is None or sources["covering"] is None:
         raise QmdfError(f"{run_dir}'s manifest names no field or covering before its last contract")
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
-    node = OmegaConf.merge(OmegaConf.create(config["contract"]),
-                           OmegaConf.from_dotlist([o.removeprefix("contract.") for o in overrides]))
+    node = OmegaConf.merge(
+        OmegaConf.create(config["contract"]), OmegaConf.from_dotlist([o.removeprefix("contract.") for o in overrides])
+    )
     problems = check_section(ContractConfig, node, "contract")
     if problems:
         raise QmdfError("; ".join(map(str, problems)))
@@ -59,8 +63,9 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     covering = MESH.load(run_dir / sources["covering"])
     features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
     faces = np.asarray(covering.faces)
-    x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, features=features,
-                                   **contraction_params(cfg))
+    x, history, vol0, _ = contract(
+        field, np.asarray(covering.vertices), faces, None, features=features, **contraction_params(cfg)
+    )
     mat = membrane_to_mat(surface_mesh(x, faces), field)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)
@@ -68,6 +73,8 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), resolution)
     if recon is not None:
         MESH.save(recon, out_dir / "reconstruction.ply")
-    write_json(out_dir / "contraction.json", {"run": str(run_dir), "overrides": overrides, "initial_volume": vol0,
-                                              "history": history})
+    write_json(
+        out_dir / "contraction.json",
+        {"run": str(run_dir), "overrides": overrides, "initial_volume": vol0, "history": history},
+    )
     return out_dir

@@ -12,6 +12,7 @@ Floors (what a stage cannot beat, not what it should equal):
 - evaluate: one SciPy KD-tree built on and queried with the sample count.
 Time it with nothing else running: two torch processes on 2 cores slow each other far more than 2x.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,19 +57,26 @@ def floors(run_dir: Path) -> dict[str, tuple[float, str]]:
 
         out["sample"] = (_timed(lambda: get_shape(inp["shape"]).mesh(inp["shape_resolution"])), "make the shape's mesh")
     if "field" in run.artifacts and "training" in run.artifacts:
-        out["train"] = (_train_floor(run, cfg["train"]), f"{cfg['train']['steps']} plain torch steps, same net and batch")
+        out["train"] = (
+            _train_floor(run, cfg["train"]),
+            f"{cfg['train']['steps']} plain torch steps, same net and batch",
+        )
     res = int(cfg["cover"]["resolution"])
     out["cover"] = (_marching_cubes_floor(res), f"one marching-cubes pass over {res}^3")
     if "covering" in run.artifacts:
-        out["contract"] = (_laplacian_floor(run.load("covering"), int(cfg["contract"]["iterations"])),
-                           f"{cfg['contract']['iterations']} sparse Laplacian products")
+        out["contract"] = (
+            _laplacian_floor(run.load("covering"), int(cfg["contract"]["iterations"])),
+            f"{cfg['contract']['iterations']} sparse Laplacian products",
+        )
     if "mat" in run.artifacts:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
 
         mat = run.load("mat")
         r = int(cfg["export"]["reconstruction_resolution"])
-        out["export"] = (_timed(lambda: reconstruct_mesh(EnvelopeUnion.from_mat(mat), r)),
-                         f"the MAT's envelope meshed at {r}^3")
+        out["export"] = (
+            _timed(lambda: reconstruct_mesh(EnvelopeUnion.from_mat(mat), r)),
+            f"the MAT's envelope meshed at {r}^3",
+        )
     n = int(cfg["evaluate"]["samples"])
     out["evaluate"] = (_kdtree_floor(n), f"a KD-tree of {n} samples queried with {n}")
     return out
@@ -138,35 +146,62 @@ def run_model(name: str, override: str, out: Path, overrides: list[str], timeout
         return row
     manifest = json.loads((run_dir / "manifest.json").read_text())
     floor = floors(run_dir)
-    row["stages"] = [{"stage": s["name"], "wall_s": s["seconds"], "cpu_s": s.get("cpu_seconds"),
-                      "peak_mb": s.get("peak_rss_mb"), "floor_s": floor.get(s["name"], (None, ""))[0],
-                      "floor": floor.get(s["name"], (None, "-"))[1]} for s in manifest["stages"]]
+    row["stages"] = [
+        {
+            "stage": s["name"],
+            "wall_s": s["seconds"],
+            "cpu_s": s.get("cpu_seconds"),
+            "peak_mb": s.get("peak_rss_mb"),
+            "floor_s": floor.get(s["name"], (None, ""))[0],
+            "floor": floor.get(s["name"], (None, "-"))[1],
+        }
+        for s in manifest["stages"]
+    ]
     row["pipeline_s"] = round(sum(s["seconds"] for s in manifest["stages"]), 1)
-    row["cover_to_evaluate_s"] = round(sum(s["seconds"] for s in manifest["stages"]
-                                           if s["name"] in ("cover", "contract", "sheet", "export", "evaluate")), 1)
+    row["cover_to_evaluate_s"] = round(
+        sum(
+            s["seconds"]
+            for s in manifest["stages"]
+            if s["name"] in ("cover", "contract", "sheet", "export", "evaluate")
+        ),
+        1,
+    )
     return row
 
 
 def print_table(rows: list[dict]) -> None:
     for row in rows:
-        print(f"\n{row['model']}: whole run {row['wall_s']} s (process start included)"
-              + (f", pipeline {row['pipeline_s']} s, cover..evaluate {row['cover_to_evaluate_s']} s"
-                 if "stages" in row else f": failed ({row.get('error')})"))
+        print(
+            f"\n{row['model']}: whole run {row['wall_s']} s (process start included)"
+            + (
+                f", pipeline {row['pipeline_s']} s, cover..evaluate {row['cover_to_evaluate_s']} s"
+                if "stages" in row
+                else f": failed ({row.get('error')})"
+            )
+        )
         if "stages" not in row:
             continue
         print(f"  {'stage':<10}{'wall s':>8}{'CPU s':>8}{'peak MB':>9}{'floor s':>9}{'ratio':>8}  floor")
         for s in row["stages"]:
             f = s["floor_s"]
             ratio = (f"{s['wall_s'] / f:.1f}x" if s["wall_s"] / f < 10 else f"{s['wall_s'] / f:.0f}x") if f else "-"
-            print(f"  {s['stage']:<10}{s['wall_s']:>8.1f}{s['cpu_s'] or 0:>8.1f}{s['peak_mb'] or 0:>9.0f}"
-                  f"{f if f is not None else float('nan'):>9.2f}{ratio:>8}  {s['floor']}")
-    print("\nwall and CPU (all threads) per stage from the run's manifest; floor: the same work by the fastest "
-          "tool for it (see python -m qmdf.bench speed --help), timed on the run's artifacts.")
+            print(
+                f"  {s['stage']:<10}{s['wall_s']:>8.1f}{s['cpu_s'] or 0:>8.1f}{s['peak_mb'] or 0:>9.0f}"
+                f"{f if f is not None else float('nan'):>9.2f}{ratio:>8}  {s['floor']}"
+            )
+    print(
+        "\nwall and CPU (all threads) per stage from the run's manifest; floor: the same work by the fastest "
+        "tool for it (see python -m qmdf.bench speed --help), timed on the run's artifacts."
+    )
 
 
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="python -m qmdf.bench speed", description=__doc__.split("\n\n")[0],
-                                 epilog=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m qmdf.bench speed",
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--json", type=Path, help="write the rows as JSON")
     ap.add_argument("--only", default="", help="comma-separated: teacup, bunny")
     ap.add_argument("--data", type=Path, default=default_data_dir(), help="benchmark data (default ../shared/data)")

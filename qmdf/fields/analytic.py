@@ -4,6 +4,7 @@ extraction stages are proven on known answers independently of training.
 Inside a solid, mf(x) is the radius of the medial ball at the point where the inward normal ray from x's
 closest surface point meets the axis, and q = mf - |sdf| is the distance along that ray to the axis.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -129,10 +130,14 @@ def box_medial_triangles(half: np.ndarray) -> np.ndarray:
     quads, tris = [[(-a + c, -b + c, 0), (a - c, -b + c, 0), (a - c, b - c, 0), (-a + c, b - c, 0)]], []
     for sx in (-1, 1):
         for sz in (-1, 1):  # edges along y, between faces x = sx a and z = sz c
-            quads.append([(sx * a, -b, sz * c), (sx * a, b, sz * c), (sx * (a - c), b - c, 0), (sx * (a - c), -(b - c), 0)])
+            quads.append(
+                [(sx * a, -b, sz * c), (sx * a, b, sz * c), (sx * (a - c), b - c, 0), (sx * (a - c), -(b - c), 0)]
+            )
     for sy in (-1, 1):
         for sz in (-1, 1):  # edges along x, between faces y = sy b and z = sz c
-            quads.append([(-a, sy * b, sz * c), (a, sy * b, sz * c), (a - c, sy * (b - c), 0), (-(a - c), sy * (b - c), 0)])
+            quads.append(
+                [(-a, sy * b, sz * c), (a, sy * b, sz * c), (a - c, sy * (b - c), 0), (-(a - c), sy * (b - c), 0)]
+            )
     for sx in (-1, 1):
         for sy in (-1, 1):  # edges along z, between faces x = sx a and y = sy b
             tris.append([(sx * a, sy * b, -c), (sx * a, sy * b, c), (sx * (a - c), sy * (b - c), 0)])

@@ -2,6 +2,7 @@
 
 Each one must be twice differentiable (the eikonal and orthogonality terms differentiate its gradient).
 """
+
 from __future__ import annotations
 
 import math
@@ -28,9 +29,13 @@ class MLPConfig:
     width: int = param(128, ge=8, doc="hidden width")
     depth: int = param(4, ge=1, doc="hidden layers")
     softplus_beta: float = param(100.0, gt=0, doc="softplus sharpness (DMF: 100)")
-    fourier_features: int = param(0, ge=0, doc="Gaussian Fourier features of the input (0: none, keeps geometric init exact)")
+    fourier_features: int = param(
+        0, ge=0, doc="Gaussian Fourier features of the input (0: none, keeps geometric init exact)"
+    )
     fourier_scale: float = param(2.0, gt=0, doc="std of the Fourier frequencies (cycles per unit)")
-    geometric_init: bool = param(True, doc="start from the SDF of a sphere (SAL), so training begins from a valid shape")
+    geometric_init: bool = param(
+        True, doc="start from the SDF of a sphere (SAL), so training begins from a valid shape"
+    )
 
 
 @register_backbone("mlp", MLPConfig)
@@ -77,17 +82,26 @@ class GridConfig:
     features: int = param(2, ge=1, le=8, doc="features per level")
     base_resolution: int = param(8, ge=2, doc="cells per side at the coarsest level")
     finest_resolution: int = param(80, ge=2, doc="cells per side at the finest level")
-    log2_table_size: int = param(20, ge=8, le=24, doc="entries per level; finer levels are hashed into it. 2^20 keeps "
-                                 "every level dense up to 100 cells: hash collisions were the teacup's q noise (genus "
-                                 "of the covering 555 at 2^17 and 96 cells, 12 dense at 80)")
+    log2_table_size: int = param(
+        20,
+        ge=8,
+        le=24,
+        doc="entries per level; finer levels are hashed into it. 2^20 keeps "
+        "every level dense up to 100 cells: hash collisions were the teacup's q noise (genus "
+        "of the covering 555 at 2^17 and 96 cells, 12 dense at 80)",
+    )
     bound: float = param(0.6, gt=0, doc="the grid covers [-bound, bound]^3 (volume samples reach 0.6)")
     width: int = param(64, ge=8, doc="hidden width of the MLP after the encoding")
     depth: int = param(2, ge=1, doc="hidden layers of that MLP")
     softplus_beta: float = param(100.0, gt=0)
     geometric_init: bool = param(True, doc="the MLP reads the coordinates too and starts from a sphere's SDF")
-    medial_width: int = param(64, ge=0, doc="the medial field from its own smooth MLP of the coordinates (this width, 3 "
-                              "layers) instead of the grid's features: the grid follows every bump's medial branch, and "
-                              "on the bunny its mf was blocks and q a maze (covering genus ~1500); 0: from the grid")
+    medial_width: int = param(
+        64,
+        ge=0,
+        doc="the medial field from its own smooth MLP of the coordinates (this width, 3 "
+        "layers) instead of the grid's features: the grid follows every bump's medial branch, and "
+        "on the bunny its mf was blocks and q a maze (covering genus ~1500); 0: from the grid",
+    )
 
 
 #: Spatial-hash primes of Instant-NGP (the first is 1 so that a dense level needs no hashing).
@@ -108,7 +122,7 @@ class Grid(nn.Module):
         super().__init__()
         self.cfg = cfg
         growth = (cfg.finest_resolution / cfg.base_resolution) ** (1 / max(1, cfg.levels - 1))
-        res = [int(math.floor(cfg.base_resolution * growth ** i)) for i in range(cfg.levels)]
+        res = [int(math.floor(cfg.base_resolution * growth**i)) for i in range(cfg.levels)]
         table = 1 << cfg.log2_table_size
         sizes = [min((r + 1) ** 3, table) for r in res]
         offsets = [0]
@@ -119,26 +133,42 @@ class Grid(nn.Module):
         self.register_buffer("size", torch.tensor(sizes, dtype=torch.int64), persistent=False)
         self.register_buffer("offset", torch.tensor(offsets, dtype=torch.int64), persistent=False)
         self.register_buffer("dense", torch.tensor([(r + 1) ** 3 <= table for r in res]), persistent=False)
-        self.register_buffer("corners", torch.tensor([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)]), persistent=False)
+        self.register_buffer(
+            "corners", torch.tensor([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)]), persistent=False
+        )
         self.table = nn.Parameter(torch.empty(sum(sizes), cfg.features).uniform_(-1e-4, 1e-4))
-        mlp_cfg = MLPConfig(width=cfg.width, depth=cfg.depth, softplus_beta=cfg.softplus_beta,
-                            fourier_features=0, geometric_init=cfg.geometric_init)
+        mlp_cfg = MLPConfig(
+            width=cfg.width,
+            depth=cfg.depth,
+            softplus_beta=cfg.softplus_beta,
+            fourier_features=0,
+            geometric_init=cfg.geometric_init,
+        )
         self.mlp = MLP(mlp_cfg, extra_dim=cfg.levels * cfg.features)
         self.out_dim = cfg.width
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """(N, 3) -> (N, levels * features)."""
-        u = ((x.clamp(-self.cfg.bound, self.cfg.bound) + self.cfg.bound) / (2 * self.cfg.bound))[:, None, :] * self.res[None, :, None]
-        cell = torch.minimum(u.detach().floor(), (self.res - 1)[None, :, None])  # (N, L, 3); the far face stays in the last cell
+        u = ((x.clamp(-self.cfg.bound, self.cfg.bound) + self.cfg.bound) / (2 * self.cfg.bound))[:, None, :] * self.res[
+            None, :, None
+        ]
+        cell = torch.minimum(
+            u.detach().floor(), (self.res - 1)[None, :, None]
+        )  # (N, L, 3); the far face stays in the last cell
         t = u - cell
         w1 = t * t * (3 - 2 * t)  # smoothstep: C1 across cell faces
         idx = cell.long()[:, :, None, :] + self.corners[None, None]  # (N, L, 8, 3)
         stride = (self.res_int + 1)[None, :, None]
         dense = idx[..., 0] + stride * (idx[..., 1] + stride * idx[..., 2])
         hashed = (idx[..., 0] * _PRIMES[0]) ^ (idx[..., 1] * _PRIMES[1]) ^ (idx[..., 2] * _PRIMES[2])
-        flat = torch.where(self.dense[None, :, None], dense, hashed % self.size[None, :, None]) + self.offset[None, :, None]
+        flat = (
+            torch.where(self.dense[None, :, None], dense, hashed % self.size[None, :, None])
+            + self.offset[None, :, None]
+        )
         w = torch.stack([1 - w1, w1], -1)  # (N, L, 3, 2): weights of the near and far corner per axis
-        weight = (w[:, :, 0, :, None, None] * w[:, :, 1, None, :, None] * w[:, :, 2, None, None, :]).reshape(*w.shape[:2], 8)
+        weight = (w[:, :, 0, :, None, None] * w[:, :, 1, None, :, None] * w[:, :, 2, None, None, :]).reshape(
+            *w.shape[:2], 8
+        )
         feats = self.table[flat]  # (N, L, 8, F)
         return (weight[..., None] * feats).sum(2).reshape(len(x), -1)
 

@@ -1,6 +1,7 @@
 """Training batches. Each step's batch is drawn from the supervision's pools (input points with their normals;
 volume samples with their targets) by a generator seeded by (seed, step), and drawn by the module from its own
 global step: a resumed run draws exactly what an uninterrupted one would, whatever the data loader replays."""
+
 from __future__ import annotations
 
 import torch
@@ -53,8 +54,13 @@ class StepSampler:
         if heights is not None and self.ray is not None:
             ray = self.ray[pv]
             mf = torch.where(ray >= 0, heights[ray.clamp_min(0)], mf)
-        return {"xs": self.surface[ps], "normals": None if self.normals is None else self.normals[ps],
-                "xv": self.volume[pv], "sdf_target": self.sdf[pv], "mf_target": mf}
+        return {
+            "xs": self.surface[ps],
+            "normals": None if self.normals is None else self.normals[ps],
+            "xv": self.volume[pv],
+            "sdf_target": self.sdf[pv],
+            "mf_target": mf,
+        }
 
     def _along_rays(self, fn, samples: int, reach: float, chunk: int) -> torch.Tensor:
         """fn(points (M * samples, 3), depths (M, samples)) -> (M,), over the depths 0 .. reach * r of each surface
@@ -63,10 +69,10 @@ class StepSampler:
         out = torch.empty(len(self.origins), device=self.surface.device)
         per = max(1, chunk // samples)
         for s in range(0, len(self.origins), per):
-            p, n, r = self.origins[s:s + per], self.ray_normals[s:s + per], self.radii[s:s + per]
+            p, n, r = self.origins[s : s + per], self.ray_normals[s : s + per], self.radii[s : s + per]
             depth = r[:, None] * t[None, :]
             x = p[:, None, :] - depth[..., None] * n[:, None, :]
-            out[s:s + per] = fn(x.reshape(-1, 3), depth)
+            out[s : s + per] = fn(x.reshape(-1, 3), depth)
         return out
 
     @torch.no_grad()
@@ -91,8 +97,8 @@ class StepSampler:
         small metric errors along long rays: both were tried on the bunny.)"""
         out = torch.empty(len(self.origins), device=self.surface.device)
         for s in range(0, len(self.origins), chunk):
-            centre = self.origins[s:s + chunk] - self.radii[s:s + chunk, None] * self.ray_normals[s:s + chunk]
-            out[s:s + chunk] = (-sdf_fn(centre)).clamp_min(0.0)
+            centre = self.origins[s : s + chunk] - self.radii[s : s + chunk, None] * self.ray_normals[s : s + chunk]
+            out[s : s + chunk] = (-sdf_fn(centre)).clamp_min(0.0)
         return out
 
 

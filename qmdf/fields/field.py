@@ -4,6 +4,7 @@ chunked (a 256^3 grid fits in memory), no autograd graph kept unless gradients a
 Analytic fields (exact SDF and medial field of a torus, a box...) implement the same ``evaluate`` so the
 extraction stages can be proven on known answers, independently of training.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -25,8 +26,14 @@ class FieldLike(Protocol):
 
 
 class Field:
-    def __init__(self, net, normalization: Normalization | None = None, meta: dict | None = None,
-                 chunk: int = 1 << 16, device: str | None = None):
+    def __init__(
+        self,
+        net,
+        normalization: Normalization | None = None,
+        meta: dict | None = None,
+        chunk: int = 1 << 16,
+        device: str | None = None,
+    ):
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.net = net.to(self.device).eval()
         self.normalization = normalization or Normalization.identity()
@@ -39,7 +46,7 @@ class Field:
         keys = ["sdf", "mf", "q"] + (["sdf_grad", "q_grad"] if grad else [])
         out = {k: np.empty((len(pts), 3) if k.endswith("grad") else len(pts), np.float32) for k in keys}
         for s in range(0, len(pts), self.chunk):
-            x = torch.from_numpy(pts[s:s + self.chunk]).to(self.device)
+            x = torch.from_numpy(pts[s : s + self.chunk]).to(self.device)
             if grad:
                 x.requires_grad_(True)
                 with torch.enable_grad():
@@ -47,15 +54,15 @@ class Field:
                     q = mf - sdf.abs()
                     gs = torch.autograd.grad(sdf.sum(), x, retain_graph=True)[0]
                     gq = torch.autograd.grad(q.sum(), x)[0]
-                out["sdf_grad"][s:s + self.chunk] = gs.cpu().numpy()
-                out["q_grad"][s:s + self.chunk] = gq.cpu().numpy()
+                out["sdf_grad"][s : s + self.chunk] = gs.cpu().numpy()
+                out["q_grad"][s : s + self.chunk] = gq.cpu().numpy()
             else:
                 with torch.no_grad():
                     sdf, mf = self.net(x)
                     q = mf - sdf.abs()
-            out["sdf"][s:s + self.chunk] = sdf.detach().cpu().numpy()
-            out["mf"][s:s + self.chunk] = mf.detach().cpu().numpy()
-            out["q"][s:s + self.chunk] = q.detach().cpu().numpy()
+            out["sdf"][s : s + self.chunk] = sdf.detach().cpu().numpy()
+            out["mf"][s : s + self.chunk] = mf.detach().cpu().numpy()
+            out["q"][s : s + self.chunk] = q.detach().cpu().numpy()
         return out
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
@@ -66,8 +73,15 @@ class Field:
 
     # -- storage: plain containers only, so torch.load(weights_only=True) reads it ----------------------
     def save(self, path: Path) -> None:
-        torch.save({"format": FORMAT, **self.meta, "state_dict": self.net.state_dict(),
-                    "normalization": self.normalization.to_dict()}, path)
+        torch.save(
+            {
+                "format": FORMAT,
+                **self.meta,
+                "state_dict": self.net.state_dict(),
+                "normalization": self.normalization.to_dict(),
+            },
+            path,
+        )
 
     @classmethod
     def load(cls, path: Path, device: str | None = None) -> "FieldLike":

@@ -1,5 +1,6 @@
 """Fitting a field module with Lightning: checkpoints and exact resume, Ctrl-C / SIGTERM as a clean interruption,
 no partial result ever returned as complete."""
+
 from __future__ import annotations
 
 import contextlib
@@ -9,8 +10,20 @@ import signal
 from qmdf.errors import Interrupted, QmdfError
 
 
-def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint_every: int = 250,
-        resume: bool = True, accelerator: str = "auto", show_progress: bool = False, on_end=None) -> str:
+def fit(
+    module,
+    steps: int,
+    *,
+    work_dir,
+    seed: int,
+    log,
+    logger=None,
+    checkpoint_every: int = 250,
+    resume: bool = True,
+    accelerator: str = "auto",
+    show_progress: bool = False,
+    on_end=None,
+) -> str:
     """Train ``module`` for ``steps`` with Lightning in ``work_dir`` (checkpoints, resume); returns the device it
     ran on. A training that ends short of ``steps`` is an error, never a result (a cache would keep it as
     complete). Ctrl-C or SIGTERM save a checkpoint and raise ``Interrupted``; ``on_end`` runs after the loggers
@@ -30,8 +43,9 @@ def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint
     last = work_dir / "last.ckpt"
     resume_from = str(last) if resume and last.exists() else None
     done = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"]) if resume_from else 0
-    checkpoint = L.pytorch.callbacks.ModelCheckpoint(dirpath=work_dir, save_last=True, save_top_k=0,
-                                                     every_n_train_steps=checkpoint_every)
+    checkpoint = L.pytorch.callbacks.ModelCheckpoint(
+        dirpath=work_dir, save_last=True, save_top_k=0, every_n_train_steps=checkpoint_every
+    )
 
     stop = _StopSignal()
 
@@ -49,9 +63,18 @@ def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint
     if not show_progress:  # a log or a pipe gets a line now and then instead of a bar, so it never looks hung
         callbacks.append(_heartbeat(L, log, steps))
     trainer = L.Trainer(
-        max_steps=steps, max_epochs=1, accelerator=accelerator, devices=1, logger=logger if logger is not None else False,
-        callbacks=callbacks, enable_progress_bar=show_progress, enable_model_summary=False,
-        log_every_n_steps=10, num_sanity_val_steps=0, limit_val_batches=0, default_root_dir=str(work_dir),
+        max_steps=steps,
+        max_epochs=1,
+        accelerator=accelerator,
+        devices=1,
+        logger=logger if logger is not None else False,
+        callbacks=callbacks,
+        enable_progress_bar=show_progress,
+        enable_model_summary=False,
+        log_every_n_steps=10,
+        num_sanity_val_steps=0,
+        limit_val_batches=0,
+        default_root_dir=str(work_dir),
     )
     if resume_from:
         log.info("resuming from %s (step %d of %d)", last, done, steps)
@@ -81,8 +104,11 @@ def fit(module, steps: int, *, work_dir, seed: int, log, logger=None, checkpoint
         del trainer
         gc.collect()
     if stop.received:
-        raise Interrupted(f"{signal.Signals(stop.received).name} at training step {at} of {steps}: checkpoint saved at "
-                          f"{last}; run the same command again to resume", int(stop.received))
+        raise Interrupted(
+            f"{signal.Signals(stop.received).name} at training step {at} of {steps}: checkpoint saved at "
+            f"{last}; run the same command again to resume",
+            int(stop.received),
+        )
     return device
 
 

@@ -9,6 +9,7 @@ covering, instead of iterations x vertices forward and backward passes.
 Accuracy: trilinear interpolation puts the minimum of q's kink (the medial axis) at most half a lattice step
 off, so the spacing (1e-3 of the unit box by default) bounds the error that this adds.
 """
+
 from __future__ import annotations
 
 import math
@@ -109,7 +110,7 @@ class LatticeQ:
         self.n_nodes = np.ceil((np.asarray(hi, np.float64) - self.lo) / self.h).astype(np.int64) + 2
         self.dims = (self.n_nodes + _B - 1) // _B
         self.block_id = np.full(int(np.prod(self.dims)), -1, np.int64)
-        self.pool = np.full((64, _B ** 3), np.nan)
+        self.pool = np.full((64, _B**3), np.nan)
         self.n_blocks = 0
         self.evaluated = 0
         # per point, two cells with their corner values: the current one and the last one, since points that
@@ -124,8 +125,8 @@ class LatticeQ:
             self.n_blocks = n if n >= 0 else -1 - n
             if n >= 0:
                 break
-            grown = np.full((2 * len(self.pool), _B ** 3), np.nan)
-            grown[:len(self.pool)] = self.pool
+            grown = np.full((2 * len(self.pool), _B**3), np.nan)
+            grown[: len(self.pool)] = self.pool
             self.pool = grown
         missing = np.isnan(out)
         if missing.any():
@@ -133,7 +134,9 @@ class LatticeQ:
             wanted = cells[rows] + np.stack([corner >> 2 & 1, corner >> 1 & 1, corner & 1], -1)
             nodes, inverse = np.unique(wanted, axis=0, return_inverse=True)
             pts = self.lo + nodes * self.h
-            vals = np.concatenate([self.field.evaluate(pts[s:s + self.chunk])["q"] for s in range(0, len(pts), self.chunk)])
+            vals = np.concatenate(
+                [self.field.evaluate(pts[s : s + self.chunk])["q"] for s in range(0, len(pts), self.chunk)]
+            )
             vals = vals.astype(np.float64)
             _store(nodes, vals, self.block_id, self.dims, self.pool)
             self.evaluated += len(nodes)

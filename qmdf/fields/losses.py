@@ -6,6 +6,7 @@ volume too, so |sdf| is metric deep inside, where the medial terms read it), ``o
 gradient follows outward input normals, for inputs that have trustworthy ones). Medial field (DMF): ``mf_max``,
 ``mf_ortho``, ``mf_consis`` with the medial projection, and ``mf_maximal`` (see its doc: what pins mf).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -72,8 +73,12 @@ def surface(t: Terms, cfg: SurfaceConfig) -> torch.Tensor:
 
 @dataclass
 class EikonalConfig:
-    weight: float = param(100.0, ge=0, doc="mean (|grad sdf| - 1)^2 over surface and volume samples (DiGS: 50; "
-                                           "100 here: a more metric SDF inside, see bench field)")
+    weight: float = param(
+        100.0,
+        ge=0,
+        doc="mean (|grad sdf| - 1)^2 over surface and volume samples (DiGS: 50; "
+        "100 here: a more metric SDF inside, see bench field)",
+    )
 
 
 @register_loss("eikonal", EikonalConfig, needs=("sdf",))
@@ -107,8 +112,12 @@ def _unknown(target: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class SdfTargetConfig:
-    weight: float = param(300.0, ge=0, doc="mean |sdf - d| at the volume samples with a signed distance target "
-                                           "(the route's: winding-number sign times the distance to the input)")
+    weight: float = param(
+        300.0,
+        ge=0,
+        doc="mean |sdf - d| at the volume samples with a signed distance target "
+        "(the route's: winding-number sign times the distance to the input)",
+    )
 
 
 @register_loss("sdf_target", SdfTargetConfig)
@@ -128,8 +137,11 @@ def _l1_where_known(value: torch.Tensor, target: torch.Tensor | None) -> torch.T
 
 @dataclass
 class MfTargetConfig:
-    weight: float = param(300.0, ge=0, doc="mean |mf - r| on the medial rays (r: the radius of the medial ball "
-                                           "behind the ray's surface point)")
+    weight: float = param(
+        300.0,
+        ge=0,
+        doc="mean |mf - r| on the medial rays (r: the radius of the medial ball behind the ray's surface point)",
+    )
 
 
 @register_loss("mf_target", MfTargetConfig, medial=True)
@@ -141,9 +153,13 @@ def mf_target(t: Terms, cfg: MfTargetConfig) -> torch.Tensor:
 
 @dataclass
 class NormalConfig:
-    weight: float = param(0.0, ge=0, doc="mean (1 - cos(grad sdf, n)) at the input points with outward normals "
-                                         "(SIREN: 1e2); 0: raw points, as the paper. Reads a mesh's face normals (turned "
-                                         "outward) or a point file's; does nothing on points without normals")
+    weight: float = param(
+        0.0,
+        ge=0,
+        doc="mean (1 - cos(grad sdf, n)) at the input points with outward normals "
+        "(SIREN: 1e2); 0: raw points, as the paper. Reads a mesh's face normals (turned "
+        "outward) or a point file's; does nothing on points without normals",
+    )
 
 
 @register_loss("normal", NormalConfig, needs=("sdf",))
@@ -188,8 +204,12 @@ def medial_projection(t: Terms) -> torch.Tensor:
 
 @dataclass
 class MfConsisConfig:
-    weight: float = param(2000.0, ge=0, doc="mean (|sdf(M_proj(x))| - mf(x))^2 (DMF: 500; 2000 here ties mf to "
-                                            "the maximal ball harder against mf_maximal's push, see bench field)")
+    weight: float = param(
+        2000.0,
+        ge=0,
+        doc="mean (|sdf(M_proj(x))| - mf(x))^2 (DMF: 500; 2000 here ties mf to "
+        "the maximal ball harder against mf_maximal's push, see bench field)",
+    )
 
 
 @register_loss("mf_consis", MfConsisConfig, medial=True, needs=("sdf",))
@@ -246,8 +266,11 @@ def sharp_mf(t: Terms, cfg: SharpMfConfig) -> torch.Tensor:
 
 @dataclass
 class SharpMedialConfig:
-    weight: float = param(0.0, ge=0, doc="sdf = -r and mf = r at known medial points (the sharp edges' inward "
-                                         "bisectors; feature_retrain sets it)")
+    weight: float = param(
+        0.0,
+        ge=0,
+        doc="sdf = -r and mf = r at known medial points (the sharp edges' inward bisectors; feature_retrain sets it)",
+    )
     batch: int = param(4096, ge=1, doc="medial points drawn per step")
 
 
@@ -275,8 +298,18 @@ PAPER_TERMS = ("surface", "eikonal", "offsurface", "normal", "mf_max", "mf_ortho
 
 #: The supervised routes (mesh, oriented or raw points): the targets carry sign, metric and mf; the terms that
 #: differentiate the field (eikonal, mf_ortho, mf_consis), most of a step's cost, are off (see README: measured).
-SUPERVISED_WEIGHTS = {"surface": 3000.0, "eikonal": 0.0, "offsurface": 100.0, "sdf_target": 300.0, "normal": 0.0,
-                      "mf_max": 100.0, "mf_ortho": 0.0, "mf_consis": 0.0, "mf_maximal": 0.0, "mf_target": 300.0}
+SUPERVISED_WEIGHTS = {
+    "surface": 3000.0,
+    "eikonal": 0.0,
+    "offsurface": 100.0,
+    "sdf_target": 300.0,
+    "normal": 0.0,
+    "mf_max": 100.0,
+    "mf_ortho": 0.0,
+    "mf_consis": 0.0,
+    "mf_maximal": 0.0,
+    "mf_target": 300.0,
+}
 
 
 def default_losses() -> dict:

@@ -1,4 +1,5 @@
 """The LightningModule: one optimisation step of the joint SDF + medial field."""
+
 from __future__ import annotations
 
 import math
@@ -44,9 +45,20 @@ class FieldModule(L.LightningModule):
     outside (``build_net``, ``build_terms``); ``anchors`` are named point sets some terms read beyond the batch
     (feature_retrain's feature points, medial points and radii), kept as buffers so a checkpoint holds them."""
 
-    def __init__(self, net: MedialFieldNet, terms: list[tuple[str, Callable, Any]], sampler: StepSampler, *,
-                 steps: int, lr: float = 1e-3, lr_final: float = 1e-4, medial_field: bool = True, ridge_every: int = 0,
-                 ridge_start: float = 0.3, anchors: dict | None = None):
+    def __init__(
+        self,
+        net: MedialFieldNet,
+        terms: list[tuple[str, Callable, Any]],
+        sampler: StepSampler,
+        *,
+        steps: int,
+        lr: float = 1e-3,
+        lr_final: float = 1e-4,
+        medial_field: bool = True,
+        ridge_every: int = 0,
+        ridge_start: float = 0.3,
+        anchors: dict | None = None,
+    ):
         super().__init__()
         self.net = net
         self.medial_field = medial_field
@@ -54,7 +66,9 @@ class FieldModule(L.LightningModule):
         self.needs = {need for _, fn, _ in self.terms for need in getattr(fn, "needs", ())}
         self.anchor_names = []
         for name, value in (anchors or {}).items():
-            self.register_buffer(f"anchor_{name}", None if value is None else torch.as_tensor(value, dtype=torch.float32))
+            self.register_buffer(
+                f"anchor_{name}", None if value is None else torch.as_tensor(value, dtype=torch.float32)
+            )
             self.anchor_names.append(name)
         self.lr, self.lr_final, self.steps = lr, lr_final, steps
         self.sampler = sampler
@@ -84,12 +98,21 @@ class FieldModule(L.LightningModule):
                 grad_mf = torch.autograd.grad(mf.sum(), x, create_graph=True)[0]
         b = len(xs)
         t = Terms(
-            xs=xs, xv=x[b:], sdf_s=sdf[:b], sdf_v=sdf[b:], grad_s=None if grad is None else grad[:b],
-            grad_v=None if grad is None else grad[b:], mf_v=mf[b:] if self.medial_field else None,
+            xs=xs,
+            xv=x[b:],
+            sdf_s=sdf[:b],
+            sdf_v=sdf[b:],
+            grad_s=None if grad is None else grad[:b],
+            grad_v=None if grad is None else grad[b:],
+            mf_v=mf[b:] if self.medial_field else None,
             grad_mf_v=grad_mf[b:] if grad_mf is not None else None,
-            sdf_fn=self.net.sdf_only, progress=self.global_step / max(1, self.steps - 1),
-            normals_s=data["normals"], sdf_target_v=data["sdf_target"], mf_target_v=data["mf_target"],
-            net=self.net, anchors={name: getattr(self, f"anchor_{name}") for name in self.anchor_names},
+            sdf_fn=self.net.sdf_only,
+            progress=self.global_step / max(1, self.steps - 1),
+            normals_s=data["normals"],
+            sdf_target_v=data["sdf_target"],
+            mf_target_v=data["mf_target"],
+            net=self.net,
+            anchors={name: getattr(self, f"anchor_{name}") for name in self.anchor_names},
             generator=lambda salt: self.sampler.generator(step, salt),
         )
         values = {name: fn(t, cfg) for name, fn, cfg in self.terms}
@@ -111,4 +134,7 @@ class FieldModule(L.LightningModule):
             t = min(step / max(1, self.steps), 1.0)
             return final + (1 - final) * 0.5 * (1 + math.cos(math.pi * t))
 
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": torch.optim.lr_scheduler.LambdaLR(opt, cosine), "interval": "step"}}
+        return {
+            "optimizer": opt,
+            "lr_scheduler": {"scheduler": torch.optim.lr_scheduler.LambdaLR(opt, cosine), "interval": "step"},
+        }

@@ -1,4 +1,5 @@
 """The joint network: a backbone trunk and three heads, sdf, mf_inner and mf_outer (paper Sec. 4.1.3)."""
+
 from __future__ import annotations
 
 import math
@@ -32,7 +33,9 @@ class MedialFieldNet(nn.Module):
 
     @staticmethod
     def _head(w: int, hw: int) -> nn.Module:
-        head = nn.Sequential(nn.Linear(w, hw), nn.Softplus(beta=100), nn.Linear(hw, hw), nn.Softplus(beta=100), nn.Linear(hw, 1))
+        head = nn.Sequential(
+            nn.Linear(w, hw), nn.Softplus(beta=100), nn.Linear(hw, hw), nn.Softplus(beta=100), nn.Linear(hw, 1)
+        )
         nn.init.constant_(head[-1].bias, 0.1)  # a positive radius to start from
         return head
 

@@ -21,6 +21,7 @@ and samples the rays to them: a point inside gets mf = the radius of the ball be
 (on a ray: sdf = -depth too), so the medial field is told its answer where the DMF terms alone let it sag, and
 q = mf - |sdf| is 0 on the axis.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -28,8 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from qmdf.geometry.inside import (mesh_distance, mesh_winding_number, point_areas, points_distance,
-                                  points_winding_number)
+from qmdf.geometry.inside import mesh_distance, mesh_winding_number, point_areas, points_distance, points_winding_number
 from qmdf.geometry.medial_radius import inward_medial_radii
 from qmdf.geometry.normals import estimate_oriented_normals, local_spacing, orient_by_winding, pca_normals
 from qmdf.geometry.proxy_surface import poisson_surface
@@ -60,8 +60,10 @@ def choose_route(requested: str, mesh_available: bool, has_normals: bool) -> tup
         if requested == "mesh" and not mesh_available:
             from qmdf.errors import QmdfError
 
-            raise QmdfError("train.supervision=mesh needs a mesh input without degradations (a degraded mesh is a "
-                            "simulated point cloud); use auto, oriented_points, raw_points or paper")
+            raise QmdfError(
+                "train.supervision=mesh needs a mesh input without degradations (a degraded mesh is a "
+                "simulated point cloud); use auto, oriented_points, raw_points or paper"
+            )
         return requested, "set by train.supervision"
     if mesh_available:
         return "mesh", "the input is a mesh"
@@ -70,11 +72,22 @@ def choose_route(requested: str, mesh_available: bool, has_normals: bool) -> tup
     return "raw_points", "the input points carry no normals"
 
 
-def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None, rng: np.random.Generator,
-                      mesh: tuple[np.ndarray, np.ndarray] | None = None, volume_samples: int = 200_000,
-                      uniform_fraction: float = 0.25, ray_fraction: float = 0.4, box: float = 0.6,
-                      proxy: str = "poisson", poisson_depth: int = 8, poisson_point_weight: float = 4.0,
-                      proxy_rays: int = 50_000, zero_level: str = "input") -> Supervision:
+def build_supervision(
+    route: str,
+    points: np.ndarray,
+    normals: np.ndarray | None,
+    rng: np.random.Generator,
+    mesh: tuple[np.ndarray, np.ndarray] | None = None,
+    volume_samples: int = 200_000,
+    uniform_fraction: float = 0.25,
+    ray_fraction: float = 0.4,
+    box: float = 0.6,
+    proxy: str = "poisson",
+    poisson_depth: int = 8,
+    poisson_point_weight: float = 4.0,
+    proxy_rays: int = 50_000,
+    zero_level: str = "input",
+) -> Supervision:
     """The training targets of ``route`` (see the module doc). Points are in the unit box."""
     stats: dict = {"route": route}
     origins, ray_normals, proxy_mesh = None, None, None  # rays start at the points, along their normals
@@ -96,8 +109,11 @@ def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None
         stats["noise_level"] = noise
         if proxy == "poisson":
             proxy_mesh = poisson_surface(points, normals, poisson_depth, poisson_point_weight)
-            stats["proxy"] = "poisson" if proxy_mesh is not None else \
-                "points (no closed Poisson surface: the normals contradict each other, or the solver failed)"
+            stats["proxy"] = (
+                "poisson"
+                if proxy_mesh is not None
+                else "points (no closed Poisson surface: the normals contradict each other, or the solver failed)"
+            )
         else:
             stats["proxy"] = "points"
         if proxy_mesh is not None:
@@ -117,8 +133,9 @@ def build_supervision(route: str, points: np.ndarray, normals: np.ndarray | None
             # tree's worst case (on a torus's tube every face around the ring is nearly as close), 7x slower.
             gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
             tree = cKDTree(pv)
-            radii = inward_medial_radii(origins, ray_normals, lambda q: tree.query(q, workers=-1)[0],
-                                        tol=1e-3 + 0.05 * gap, iterations=14)
+            radii = inward_medial_radii(
+                origins, ray_normals, lambda q: tree.query(q, workers=-1)[0], tol=1e-3 + 0.05 * gap, iterations=14
+            )
         else:
             radii = inward_medial_radii(points, normals, lambda q: points_distance(points, q), tol=2e-3 + 3 * noise)
     elif route == "paper":
@@ -192,7 +209,7 @@ def _mesh_outward_normals(points, normals, v, f, stats) -> np.ndarray:
     n = _unit(normals)
     step = 1e-3
     w = mesh_winding_number(v, f, np.concatenate([points + step * n, points - step * n]))
-    inward = w[: len(points)] > w[len(points):]
+    inward = w[: len(points)] > w[len(points) :]
     stats["normals_turned"] = int(inward.sum())
     return np.where(inward[:, None], -n, n)
 

@@ -3,6 +3,7 @@
 They mirror ``sphere_sdf``/``cone_sdf``/``slab_sdf`` in envelope.py (the tested reference, which also returns
 the feet); numba runs the candidate pairs in one loop instead of numpy's ~50 temporaries per pair.
 """
+
 from __future__ import annotations
 
 import math

@@ -6,14 +6,22 @@ either face's plane) for as long as those two faces stay the nearest surface: th
 convex feature" (paper Sec. 4.3). The input points tell how long: each walk stops at the first x whose
 nearest input point is closer than ``slack`` * r, where another part of the surface takes over.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 
-def bisector_samples(features: np.ndarray, mean_normals: np.ndarray, points: np.ndarray, length: float,
-                     spacing: float, slack: float = 0.98, min_cos: float = 0.1,
-                     max_cos: float = float(np.cos(np.deg2rad(15.0)))) -> tuple[np.ndarray, np.ndarray]:
+def bisector_samples(
+    features: np.ndarray,
+    mean_normals: np.ndarray,
+    points: np.ndarray,
+    length: float,
+    spacing: float,
+    slack: float = 0.98,
+    min_cos: float = 0.1,
+    max_cos: float = float(np.cos(np.deg2rad(15.0))),
+) -> tuple[np.ndarray, np.ndarray]:
     """(M, 3) medial points and their (M,) radii, every ``spacing`` along each bisector up to ``length``.
 
     |m| is the cosine of half the angle between the two normals. Below ``min_cos`` the faces nearly fold onto

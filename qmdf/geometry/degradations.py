@@ -5,6 +5,7 @@ fractions of the bounding-box diagonal of the normalised input, so settings tran
 
     python -m qmdf +sample.degradations.subsample.n=2000 +sample.degradations.noise.sigma=0.0025
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -70,7 +71,7 @@ def nonuniform(points: PointSet, cfg: NonUniformConfig, rng: np.random.Generator
     """Non-uniform density: keep probability ramps from min_keep to 1 along an axis."""
     t = points.points @ _unit(cfg.axis, "axis")
     t = (t - t.min()) / max(float(np.ptp(t)), 1e-12)
-    keep_p = cfg.min_keep + (1.0 - cfg.min_keep) * t ** cfg.power
+    keep_p = cfg.min_keep + (1.0 - cfg.min_keep) * t**cfg.power
     return points.subset(rng.random(len(points)) < keep_p)
 
 
@@ -92,8 +93,12 @@ class MissingRegionConfig:
     mode: str = param("ball", choices=("ball", "halfspace"), doc="cut balls around surface points, or a half-space")
     count: int = param(1, ge=1, doc="ball mode: number of holes")
     radius: float = param(0.1, gt=0, doc="ball mode: hole radius as a fraction of the bbox diagonal")
-    centers: Optional[list[list[float]]] = param(None, doc="ball mode: hole centres (normalised frame); default: random input points")
-    normal: list[float] = param(factory=lambda: [0.0, 0.0, 1.0], doc="halfspace mode: remove points with x.normal > offset")
+    centers: Optional[list[list[float]]] = param(
+        None, doc="ball mode: hole centres (normalised frame); default: random input points"
+    )
+    normal: list[float] = param(
+        factory=lambda: [0.0, 0.0, 1.0], doc="halfspace mode: remove points with x.normal > offset"
+    )
     offset: float = param(0.25, doc="halfspace mode: offset along the normal (normalised frame)")
 
     def check(self) -> list[tuple[str, str]]:

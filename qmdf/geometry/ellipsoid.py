@@ -6,6 +6,7 @@ finds it to machine precision (Eberly, "Distance from a point to an ellipse, an 
 hyperellipsoid"). The normal line through x meets the plane of the smallest axis at t = -c^2, which is
 where the medial axis lies: an elliptic disc with semi-axes (a_i^2 - c^2) / a_i.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -6,6 +6,7 @@ spheres of a face). Each primitive's SDF is ``min over the primitive's centre se
 r interpolated linearly; the minimisation is convex and solved in closed form here. All functions are
 vectorised over pairs of points and primitives: arrays of shape (N, 3) and (N,).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -118,15 +119,21 @@ class EnvelopeUnion:
         edges = np.asarray(edges, np.int64).reshape(-1, 2)
         edges = edges[edges[:, 0] != edges[:, 1]]
         face_edges = {tuple(sorted(e)) for f in faces for e in ((f[0], f[1]), (f[1], f[2]), (f[0], f[2]))}
-        lone = np.array([e for e in {tuple(sorted(e)) for e in edges.tolist()} if e not in face_edges], np.int64).reshape(-1, 2)
+        lone = np.array(
+            [e for e in {tuple(sorted(e)) for e in edges.tolist()} if e not in face_edges], np.int64
+        ).reshape(-1, 2)
         used = np.zeros(len(self.c), bool)
         used[faces.ravel()] = True
         used[lone.ravel()] = True
         # kind 0: sphere, 1: cone, 2: slab; each primitive as 3 vertex indices (repeated for lower kinds)
         spheres = np.flatnonzero(~used)
-        self.prims = np.concatenate([
-            np.repeat(spheres[:, None], 3, 1), np.column_stack([lone, lone[:, 1]]), faces,
-        ]).astype(np.int64)
+        self.prims = np.concatenate(
+            [
+                np.repeat(spheres[:, None], 3, 1),
+                np.column_stack([lone, lone[:, 1]]),
+                faces,
+            ]
+        ).astype(np.int64)
         self.kind = np.concatenate([np.zeros(len(spheres)), np.ones(len(lone)), np.full(len(faces), 2)]).astype(np.int8)
         pc = self.c[self.prims]  # (P, 3, 3)
         self.anchor = pc.mean(1)
@@ -179,9 +186,11 @@ class EnvelopeUnion:
         out_c = np.empty((len(p), 3))
         out_r = np.empty(len(p))
         kind = self.kind[prim]
-        for k, fn in ((0, lambda q, cc, rr: sphere_sdf(q, cc[:, 0], rr[:, 0])),
-                      (1, lambda q, cc, rr: cone_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1])),
-                      (2, lambda q, cc, rr: slab_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1], cc[:, 2], rr[:, 2]))):
+        for k, fn in (
+            (0, lambda q, cc, rr: sphere_sdf(q, cc[:, 0], rr[:, 0])),
+            (1, lambda q, cc, rr: cone_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1])),
+            (2, lambda q, cc, rr: slab_sdf(q, cc[:, 0], rr[:, 0], cc[:, 1], rr[:, 1], cc[:, 2], rr[:, 2])),
+        ):
             sel = kind == k
             if sel.any():
                 out_d[sel], out_c[sel], out_r[sel] = fn(p[sel], c[sel], r[sel])
@@ -195,9 +204,9 @@ class EnvelopeUnion:
         out = np.empty(len(points))
         arg = np.full(len(points), -1, np.int64)
         for s in range(0, len(points), chunk):
-            p = points[s:s + chunk]
+            p = points[s : s + chunk]
             d, a = self._sdf_chunk(p, band)
-            out[s:s + chunk], arg[s:s + chunk] = d, a
+            out[s : s + chunk], arg[s : s + chunk] = d, a
         return (out, arg) if return_argmin else out
 
     def _sdf_chunk(self, p: np.ndarray, band: float | None):
@@ -236,8 +245,19 @@ class EnvelopeUnion:
         # the culling keeps every primitive that can reach u, the minimiser among them; u is attained by a
         # vertex sphere, which lies inside a primitive, so starting just above u the minimiser is recorded
         exact = u + pad
-        min_over_pairs(p, np.concatenate(pts), np.concatenate(prims), self.prims, self.kind, self.c, self.r,
-                       self.anchor, self.rho, exact, arg)
+        min_over_pairs(
+            p,
+            np.concatenate(pts),
+            np.concatenate(prims),
+            self.prims,
+            self.kind,
+            self.c,
+            self.r,
+            self.anchor,
+            self.rho,
+            exact,
+            arg,
+        )
         found = arg >= 0
         best[found] = exact[found]
         return best, arg
@@ -265,8 +285,9 @@ def reconstruct_mesh(union: EnvelopeUnion, resolution: int = 256):
     return grid.mesh()
 
 
-def sample_union_surface(union: EnvelopeUnion, count: int, rng: np.random.Generator, resolution: int = 128,
-                         mesh=None) -> np.ndarray:
+def sample_union_surface(
+    union: EnvelopeUnion, count: int, rng: np.random.Generator, resolution: int = 128, mesh=None
+) -> np.ndarray:
     """``count`` points exactly on the union's boundary, nearly uniform by area: uniform samples of the
     marching-cubes surface, each snapped onto the primitive that attains the union there."""
     from qmdf.geometry.sampling import sample_surface

@@ -5,6 +5,7 @@ fine nodes of those cells are evaluated. For a 1-Lipschitz field (any SDF, and u
 fine node provably has the sign of its cell's corners, so it is filled with a sign-correct bound and
 marching cubes sees exactly the crossings a full evaluation would.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,8 +47,9 @@ def grid_axes(lo: np.ndarray, hi: np.ndarray, resolution: int) -> tuple[list[np.
     return [lo[k] + step * np.arange(counts[k]) for k in range(3)], np.full(3, step)
 
 
-def narrow_band_level_set(field: BandedField, lo, hi, resolution: int, level: float = 0.0, coarse_step: int = 8,
-                          chunk: int = 1 << 18) -> GridLevelSet:
+def narrow_band_level_set(
+    field: BandedField, lo, hi, resolution: int, level: float = 0.0, coarse_step: int = 8, chunk: int = 1 << 18
+) -> GridLevelSet:
     """``field - level`` on a grid of ``resolution`` nodes along the longest side of [lo, hi], refined level by
     level (steps coarse_step, coarse_step/2, ..., 1): only cells the level set may cross are subdivided."""
     axes, spacing = grid_axes(lo, hi, resolution)
@@ -100,5 +102,5 @@ def _fill_from_coarser(values: np.ndarray, known: np.ndarray) -> np.ndarray:
 def _evaluate(field: BandedField, pts: np.ndarray, band: float, level: float, chunk: int) -> np.ndarray:
     out = np.empty(len(pts))
     for s in range(0, len(pts), chunk):
-        out[s:s + chunk] = field(pts[s:s + chunk], band) - level
+        out[s : s + chunk] = field(pts[s : s + chunk], band) - level
     return out

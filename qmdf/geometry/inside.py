@@ -6,6 +6,7 @@ the 7k-face bunny's winding number 0.23 s and distance 0.7 s; against 20k orient
 mesh's sign on 99.96% of the queries). The winding number stays right where a sign test by normals or rays fails:
 holes, open boundaries, self-intersections, inconsistent winding.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,7 +31,9 @@ def mesh_distance(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) 
 
     if len(queries) == 0:
         return np.zeros(0), np.zeros((0, 3))
-    sq, _, closest = igl.point_mesh_squared_distance(_f64(queries), _f64(vertices), np.ascontiguousarray(faces, np.int64))
+    sq, _, closest = igl.point_mesh_squared_distance(
+        _f64(queries), _f64(vertices), np.ascontiguousarray(faces, np.int64)
+    )
     return np.sqrt(np.maximum(sq, 0.0)), closest
 
 
@@ -49,8 +52,9 @@ def point_areas(points: np.ndarray, k: int = 16) -> np.ndarray:
     return np.pi * d[:, -1] ** 2 / k
 
 
-def points_winding_number(points: np.ndarray, normals: np.ndarray, queries: np.ndarray,
-                          areas: np.ndarray | None = None) -> np.ndarray:
+def points_winding_number(
+    points: np.ndarray, normals: np.ndarray, queries: np.ndarray, areas: np.ndarray | None = None
+) -> np.ndarray:
     """Barill et al.'s winding number of an oriented point cloud (outward normals) at each query."""
     import igl
 

@@ -3,6 +3,7 @@
 Meshes: OBJ, OFF, PLY, STL (trimesh). Point clouds: XYZ (3 or 6+ columns), PLY without faces, NPY (N x 3 or
 N x 6). Normals are read when present and never required.
 """
+
 from __future__ import annotations
 
 import logging
@@ -104,9 +105,11 @@ def _from_columns(data: np.ndarray, source: str) -> InputGeometry:
         # colours (0-255 or 0-1) and intensities never go negative; a closed surface's normals point every way.
         # Scaled normals (GCNO's files: lengths around 1e-4) are normals all the same.
         if normals.min() >= 0 or not np.all(length > 0):
-            log.warning("%s: columns 4-6 are not normals (%s), so they are ignored; the points go through the "
-                        "raw-points route", source, "no negative component: colours?" if normals.min() >= 0
-                        else "some have zero length")
+            log.warning(
+                "%s: columns 4-6 are not normals (%s), so they are ignored; the points go through the raw-points route",
+                source,
+                "no negative component: colours?" if normals.min() >= 0 else "some have zero length",
+            )
             normals = None
         else:
             normals = normals / length[:, None]
@@ -144,8 +147,13 @@ def _from_trimesh(loaded, path: Path) -> InputGeometry:
         if bad.any():  # index past the vertices, or negative (PLY has no relative indices): never wrap them
             if bad.all():
                 raise InputError(f"{path}: every face refers to a vertex outside 0..{len(loaded.vertices) - 1}")
-            log.warning("%s: dropped %d face(s) of %d that refer to a vertex outside 0..%d", path, int(bad.sum()),
-                        len(faces), len(loaded.vertices) - 1)
+            log.warning(
+                "%s: dropped %d face(s) of %d that refer to a vertex outside 0..%d",
+                path,
+                int(bad.sum()),
+                len(faces),
+                len(loaded.vertices) - 1,
+            )
             loaded = trimesh.Trimesh(loaded.vertices, faces[~bad], process=False)
         # OBJ normals / UVs split a vertex per face corner; merged, faces share edges again (sharp-edge
         # detection, watertightness)
@@ -166,7 +174,7 @@ def _from_trimesh(loaded, path: Path) -> InputGeometry:
 
 def _short(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
-    return (text[0][:200] if text else type(exc).__name__)
+    return text[0][:200] if text else type(exc).__name__
 
 
 def check_geometry(geom: InputGeometry, limits: Limits) -> InputGeometry:
@@ -177,7 +185,9 @@ def check_geometry(geom: InputGeometry, limits: Limits) -> InputGeometry:
         raise InputError(f"{src} holds no points")
     bad = ~np.all(np.isfinite(pts), axis=1)
     if bad.any():
-        raise InputError(f"{src} has {int(bad.sum())} point(s) with NaN or infinite coordinates (first at row {int(np.argmax(bad))})")
+        raise InputError(
+            f"{src} has {int(bad.sum())} point(s) with NaN or infinite coordinates (first at row {int(np.argmax(bad))})"
+        )
     biggest = float(np.abs(pts).max())
     if biggest > limits.max_abs_coordinate:
         raise InputError(
@@ -229,7 +239,12 @@ def _clean_mesh(geom: InputGeometry) -> InputGeometry:
     if keep.sum() == 0:
         raise InputError(f"{src}: all {len(f)} faces are degenerate (zero area or repeated vertices)")
     if dropped:
-        log.warning("%s: dropped %d degenerate face(s) of %d (zero area, repeated or invalid vertex indices)", src, dropped, len(f))
+        log.warning(
+            "%s: dropped %d degenerate face(s) of %d (zero area, repeated or invalid vertex indices)",
+            src,
+            dropped,
+            len(f),
+        )
     faces = f[keep]
     used = np.unique(faces)
     remap = np.full(len(v), -1, dtype=np.int64)

@@ -4,6 +4,7 @@ Line 1: ``nv ne nf``; then ``v x y z r``, ``e i j`` and ``f i j k`` lines with 0
 holds every edge, the faces' edges included. Extended variants append fields (types, deleted flags): the
 reader takes the leading numbers of each line and ignores the rest.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -35,7 +36,6 @@ class MedialMesh:
         all_edges = np.concatenate([self.edges, f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         all_edges = np.unique(np.sort(all_edges, axis=1), axis=0) if len(all_edges) else all_edges
         return MedialMesh(self.vertices, self.radii, all_edges, f)
-
 
     def lone_edges(self) -> np.ndarray:
         """The edges that bound no face (where the medial axis is a curve), each once."""

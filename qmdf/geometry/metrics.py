@@ -3,6 +3,7 @@
 Distances are exact point-to-surface distances (not nearest neighbours between two samplings, which put a
 floor of about 2e-3 under the Chamfer distance of two identical surfaces, above most of the paper's values).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,8 +29,14 @@ def point_to_mesh_distance(points: np.ndarray, vertices: np.ndarray, faces: np.n
     allpts = np.vstack([points, np.asarray(vertices, np.float64)])
     reach = 2.0 * float(np.linalg.norm(allpts.max(0) - allpts.min(0))) + 1.0  # no point is left unmatched
     ms.get_hausdorff_distance(
-        sampledmesh=1, targetmesh=0, samplevert=True, sampleedge=False, sampleface=False,
-        samplenum=len(points), maxdist=pymeshlab.PureValue(reach), savesample=True,
+        sampledmesh=1,
+        targetmesh=0,
+        samplevert=True,
+        sampleedge=False,
+        sampleface=False,
+        samplenum=len(points),
+        maxdist=pymeshlab.PureValue(reach),
+        savesample=True,
     )
     # layer 2 holds the samples in input order with their distance as vertex quality
     return np.asarray(ms.mesh(2).vertex_scalar_array(), np.float64)
@@ -39,13 +46,22 @@ def chamfer_hausdorff(r_to_g: np.ndarray, g_to_r: np.ndarray) -> dict:
     return {
         "chamfer": float((r_to_g.mean() + g_to_r.mean()) / 2),
         "hausdorff": float(max(r_to_g.max(), g_to_r.max())),
-        "mean_r_to_g": float(r_to_g.mean()), "mean_g_to_r": float(g_to_r.mean()),
-        "max_r_to_g": float(r_to_g.max()), "max_g_to_r": float(g_to_r.max()),
+        "mean_r_to_g": float(r_to_g.mean()),
+        "mean_g_to_r": float(g_to_r.mean()),
+        "max_r_to_g": float(r_to_g.max()),
+        "max_g_to_r": float(g_to_r.max()),
     }
 
 
-def reconstruction_distances(union, gt_vertices: np.ndarray, gt_faces: np.ndarray | None, samples: int,
-                             rng: np.random.Generator, resolution: int = 128, recon_mesh=None):
+def reconstruction_distances(
+    union,
+    gt_vertices: np.ndarray,
+    gt_faces: np.ndarray | None,
+    samples: int,
+    rng: np.random.Generator,
+    resolution: int = 128,
+    recon_mesh=None,
+):
     """CD / HD between a MAT's envelope union and the ground-truth mesh, both ways exact where possible:
     reconstruction samples lie exactly on the envelope (snapped from a marching-cubes mesh of the union),
     ground-truth samples use the union's exact distance, except the few whose nearest envelope point is
@@ -81,7 +97,8 @@ def reconstruction_distances(union, gt_vertices: np.ndarray, gt_faces: np.ndarra
     out["gt_inside_fraction"] = float(len(inside) / len(G))
     out["gt_distance_from_mesh_fraction"] = float(len(buried) / len(G))  # the rest are exact
     out["definition"] = CD_DEFINITION.format(n=samples) + (
-        "; G is a point cloud: d(R->G) is the distance to its nearest point" if gt_faces is None else "")
+        "; G is a point cloud: d(R->G) is the distance to its nearest point" if gt_faces is None else ""
+    )
     return out, mesh, (R, r_to_g), (G, g_to_r)
 
 

@@ -1,4 +1,5 @@
 """The unit-box normalisation of the paper (Sec. 5.1), kept so outputs can go back to the input's units."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -36,8 +37,11 @@ class Normalization:
         return np.asarray(lengths) / self.scale if not np.isscalar(lengths) else lengths / self.scale
 
     def to_dict(self) -> dict:
-        return {"center": list(self.center), "scale": self.scale,
-                "convention": "unit = (input - center) * scale; input = unit / scale + center"}
+        return {
+            "center": list(self.center),
+            "scale": self.scale,
+            "convention": "unit = (input - center) * scale; input = unit / scale + center",
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> "Normalization":

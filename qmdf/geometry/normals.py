@@ -2,6 +2,7 @@
 tree (Hoppe et al. 1992), then checked globally with the point cloud's winding number (Barill et al. 2018): a
 normal points out when the winding number is higher a small step behind it than a step ahead of it. The same
 check repairs the normals a file comes with (a scanner's can point inward, in patches or all together)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -29,7 +30,9 @@ def pca_normals(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray
     return evecs[:, :, 0], np.sqrt(np.maximum(evals[:, 0], 0.0))
 
 
-def orient_by_tree(points: np.ndarray, normals: np.ndarray, k: int = 10, cut: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def orient_by_tree(
+    points: np.ndarray, normals: np.ndarray, k: int = 10, cut: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
     """Consistent signs by propagation along a minimum spanning tree of the k-nearest-neighbour graph. An edge
     costs 1 - |n_i . n_j| (the orientation travels across flat regions first) plus |n_i . e| + |n_j . e| for its
     direction e: two points facing each other across a thin wall have parallel normals too, and without the
@@ -49,8 +52,13 @@ def orient_by_tree(points: np.ndarray, normals: np.ndarray, k: int = 10, cut: fl
     cols = idx[:, 1:].ravel()
     e = points[cols] - points[rows]
     e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-12)
-    w = (1.0 - np.abs((normals[rows] * normals[cols]).sum(1)) + np.abs((normals[rows] * e).sum(1))
-         + np.abs((normals[cols] * e).sum(1)) + 1e-6)  # zero weights would be read as no edge
+    w = (
+        1.0
+        - np.abs((normals[rows] * normals[cols]).sum(1))
+        + np.abs((normals[rows] * e).sum(1))
+        + np.abs((normals[cols] * e).sum(1))
+        + 1e-6
+    )  # zero weights would be read as no edge
     graph = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     graph = graph.maximum(graph.T)
     tree = minimum_spanning_tree(graph)
@@ -80,8 +88,15 @@ def orient_by_tree(points: np.ndarray, normals: np.ndarray, k: int = 10, cut: fl
     return out, patch
 
 
-def flip_patches(points: np.ndarray, normals: np.ndarray, patch: np.ndarray, step: np.ndarray,
-                 max_patches: int = 64, box_samples: int = 4000, seed: int = 0) -> tuple[np.ndarray, int]:
+def flip_patches(
+    points: np.ndarray,
+    normals: np.ndarray,
+    patch: np.ndarray,
+    step: np.ndarray,
+    max_patches: int = 64,
+    box_samples: int = 4000,
+    seed: int = 0,
+) -> tuple[np.ndarray, int]:
     """Turn whole patches so the cloud's winding number is as close as it can be to 0 or 1 everywhere: a thin
     wall whose inner side the tree oriented as a whole the wrong way makes the winding number 2 in the cavity and
     -1 in places, which no single normal's vote reveals. The winding number is linear in each point's normal, so
@@ -108,7 +123,7 @@ def flip_patches(points: np.ndarray, normals: np.ndarray, patch: np.ndarray, ste
     sign = np.ones(len(order))
 
     def cost(w: np.ndarray) -> float:
-        return float(np.minimum(w ** 2, (w - 1) ** 2).mean())
+        return float(np.minimum(w**2, (w - 1) ** 2).mean())
 
     w = fixed + contrib.sum(0)
     best = cost(w)
@@ -130,19 +145,21 @@ def flip_patches(points: np.ndarray, normals: np.ndarray, patch: np.ndarray, ste
     return out, turned
 
 
-def winding_ahead_behind(points: np.ndarray, normals: np.ndarray, step: np.ndarray,
-                         areas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def winding_ahead_behind(
+    points: np.ndarray, normals: np.ndarray, step: np.ndarray, areas: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The cloud's winding number a step ahead of each point (along n) and a step behind it."""
     from qmdf.geometry.inside import point_areas, points_winding_number
 
     a = point_areas(points) if areas is None else areas
     offs = step[:, None] * normals
     w = points_winding_number(points, normals, np.concatenate([points + offs, points - offs]), a)
-    return w[: len(points)], w[len(points):]
+    return w[: len(points)], w[len(points) :]
 
 
-def orient_by_winding(points: np.ndarray, normals: np.ndarray, step: np.ndarray | None = None,
-                      rounds: int = 4) -> tuple[np.ndarray, dict]:
+def orient_by_winding(
+    points: np.ndarray, normals: np.ndarray, step: np.ndarray | None = None, rounds: int = 4
+) -> tuple[np.ndarray, dict]:
     """Normals made consistent with the cloud's winding number. First the whole cloud turns when most normals
     point in (the winding number is then negative inside, and w behind - w ahead still looks right). Then, for a few rounds, every normal whose side ahead reads inside
     (w > 1/2) turns: a patch oriented the wrong way together (a cup's inner wall after the tree crossed the thin

@@ -1,5 +1,6 @@
 """A point set with optional per-point normals (input normals, kept for evaluation; for feature points from
 a mesh, the mean normal of the two faces that meet there)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

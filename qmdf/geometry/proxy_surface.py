@@ -7,13 +7,15 @@ noise, so the medial field's targets become a maze (the sparse bunny's covering 
 smooth indicator function to all the normals at once: its surface has the shape's genus on the sparse bunny, the
 sparse block and the noisy double torus, and gives a clean sign (its winding number), a metric distance, and
 medial radii against a smooth surface."""
+
 from __future__ import annotations
 
 import numpy as np
 
 
-def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int = 8, point_weight: float = 4.0,
-                    min_area_share: float = 0.02) -> tuple[np.ndarray, np.ndarray] | None:
+def poisson_surface(
+    points: np.ndarray, normals: np.ndarray, depth: int = 8, point_weight: float = 4.0, min_area_share: float = 0.02
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Screened Poisson surface of the points with their outward normals, as (vertices, faces), its components
     with less than ``min_area_share`` of the total area dropped (islands the solver makes of noise); None when
     the reconstruction fails, leaves nothing, or is not closed."""
@@ -21,11 +23,16 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int = 8, poi
     import trimesh
 
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(points, np.float64),
-                               v_normals_matrix=np.ascontiguousarray(normals, np.float64)))
+    ms.add_mesh(
+        pymeshlab.Mesh(
+            vertex_matrix=np.ascontiguousarray(points, np.float64),
+            v_normals_matrix=np.ascontiguousarray(normals, np.float64),
+        )
+    )
     try:
-        ms.generate_surface_reconstruction_screened_poisson(depth=int(depth), pointweight=float(point_weight),
-                                                            preclean=True)
+        ms.generate_surface_reconstruction_screened_poisson(
+            depth=int(depth), pointweight=float(point_weight), preclean=True
+        )
     except pymeshlab.PyMeshLabException:
         return None
     m = ms.current_mesh()

@@ -1,4 +1,5 @@
 """Uniform, area-weighted samples on a triangle mesh."""
+
 from __future__ import annotations
 
 import numpy as np

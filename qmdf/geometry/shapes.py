@@ -3,6 +3,7 @@
 Each shape is watertight with a known genus. Where a closed-form signed distance exists it is exposed as
 ``sdf`` (negative inside), so later stages can be checked against the exact answer.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -92,12 +93,19 @@ def torus_sdf(p: np.ndarray, R: float = TORUS_R, r: float = TORUS_r) -> np.ndarr
     return np.hypot(q, p[:, 2]) - r
 
 
-@register_shape("torus", genus=1, sdf=torus_sdf, doc="ring torus R=0.35, r=0.15 around z; medial axis: the circle of radius R")
+@register_shape(
+    "torus", genus=1, sdf=torus_sdf, doc="ring torus R=0.35, r=0.15 around z; medial axis: the circle of radius R"
+)
 def torus(resolution: int):
     def surf(u, v):
-        return np.stack([(TORUS_R + TORUS_r * np.cos(v)) * np.cos(u),
-                         (TORUS_R + TORUS_r * np.cos(v)) * np.sin(u),
-                         TORUS_r * np.sin(v)], -1)
+        return np.stack(
+            [
+                (TORUS_R + TORUS_r * np.cos(v)) * np.cos(u),
+                (TORUS_R + TORUS_r * np.cos(v)) * np.sin(u),
+                TORUS_r * np.sin(v),
+            ],
+            -1,
+        )
 
     return _periodic_grid(surf, resolution, max(8, resolution // 2))
 
@@ -132,7 +140,12 @@ def ellipsoid_sdf(p: np.ndarray) -> np.ndarray:
     return signed_distance(p, ELLIPSOID_AXES)
 
 
-@register_shape("ellipsoid", genus=0, sdf=ellipsoid_sdf, doc="ellipsoid with semi-axes 0.5, 0.35, 0.25; medial axis: an elliptic disc in z=0")
+@register_shape(
+    "ellipsoid",
+    genus=0,
+    sdf=ellipsoid_sdf,
+    doc="ellipsoid with semi-axes 0.5, 0.35, 0.25; medial axis: an elliptic disc in z=0",
+)
 def ellipsoid(resolution: int):
     import trimesh
 
@@ -146,7 +159,7 @@ def ellipsoid(resolution: int):
 def dodecahedron(resolution: int):
     import trimesh
 
-    phi = (1 + 5 ** 0.5) / 2
+    phi = (1 + 5**0.5) / 2
     pts = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
     for a in (-1, 1):
         for b in (-1, 1):
@@ -200,7 +213,9 @@ def _handle_sdf(p: np.ndarray) -> np.ndarray:
     ang = np.arctan2(z, x)
     on_arc = np.abs(ang) <= h["half_angle"]
     d_arc = np.hypot(np.hypot(x, z) - h["R"], y)
-    ends = [np.array([h["R"] * np.cos(s * h["half_angle"]), 0.0, h["R"] * np.sin(s * h["half_angle"])]) for s in (-1, 1)]
+    ends = [
+        np.array([h["R"] * np.cos(s * h["half_angle"]), 0.0, h["R"] * np.sin(s * h["half_angle"])]) for s in (-1, 1)
+    ]
     rel = np.stack([x, y, z], -1)
     d_end = np.minimum(np.linalg.norm(rel - ends[0], axis=1), np.linalg.norm(rel - ends[1], axis=1))
     return np.where(on_arc, d_arc, d_end) - h["r"]

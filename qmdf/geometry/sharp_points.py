@@ -8,6 +8,7 @@ A sparse sample of a curved patch splits into two planes too (the block's 1,000-
 more than 0.02 from any sharp edge, and a quarter of the feature points); one circle across the edge fits
 those better than the two planes, while no circle follows a V.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,8 +28,11 @@ def two_cluster_means(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m1 = (g * to1[..., None]).sum(1)
         m2 = (g * ~to1[..., None]).sum(1)
         c1 = m1 / np.maximum(np.linalg.norm(m1, axis=1, keepdims=True), 1e-12)
-        c2 = np.where(np.linalg.norm(m2, axis=1, keepdims=True) > 0,
-                      m2 / np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-12), c1)
+        c2 = np.where(
+            np.linalg.norm(m2, axis=1, keepdims=True) > 0,
+            m2 / np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-12),
+            c1,
+        )
     return c1, c2
 
 
@@ -53,6 +57,7 @@ def _plane(x: np.ndarray, w: np.ndarray, orient: np.ndarray) -> tuple[np.ndarray
 class EdgeFit:
     """Per query point: the nearest point of the two fitted planes' intersection, the planes' normals, how
     many neighbours each plane holds, and whether the edge is convex."""
+
     point: np.ndarray  # (N, 3)
     n1: np.ndarray  # (N, 3) unit, outward
     n2: np.ndarray  # (N, 3)
@@ -111,8 +116,16 @@ def _arc_rms(x: np.ndarray, w: np.ndarray, e: np.ndarray, t: np.ndarray) -> np.n
     return np.sqrt((w * off * off).sum(1) / np.maximum(w.sum(1), 1.0))
 
 
-def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int, tolerance: float,
-              normal_deg: float = 45.0, iterations: int = 3, chunk: int = 20_000) -> EdgeFit:
+def fit_edges(
+    query: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    k: int,
+    tolerance: float,
+    normal_deg: float = 45.0,
+    iterations: int = 3,
+    chunk: int = 20_000,
+) -> EdgeFit:
     """Two planes through the k nearest ``points`` of each query point: the neighbours split by their
     ``normals`` (2-means), then ``iterations`` rounds of k-planes. A neighbour belongs to a plane within
     ``tolerance`` * the neighbourhood's radius whose normal is within ``normal_deg`` of its own (a learned
@@ -130,7 +143,7 @@ def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int
     min_cos = np.cos(np.deg2rad(normal_deg))
     parts = []
     for s in range(0, len(query), chunk):
-        p = query[s:s + chunk]
+        p = query[s : s + chunk]
         dist, idx = tree.query(p, k=k)
         x, g = points[idx], normals[idx]
         reach = dist[:, -1]
@@ -168,11 +181,33 @@ def fit_edges(query: np.ndarray, points: np.ndarray, normals: np.ndarray, k: int
         held = w1 + w2
         rms_planes = np.sqrt((held * own * own).sum(1) / np.maximum(held.sum(1), 1.0))
         rms_arc = _arc_rms(x, held, e, _edge_direction(n1, n2))
-        parts.append((e, n1, n2, w1.sum(1), w2.sum(1), (behind1 < 0) & (behind2 < 0), np.linalg.norm(e - p, axis=1),
-                      reach, span, rms_planes, rms_arc))
+        parts.append(
+            (
+                e,
+                n1,
+                n2,
+                w1.sum(1),
+                w2.sum(1),
+                (behind1 < 0) & (behind2 < 0),
+                np.linalg.norm(e - p, axis=1),
+                reach,
+                span,
+                rms_planes,
+                rms_arc,
+            )
+        )
     if not parts:
-        return EdgeFit(*[np.zeros((0, 3))] * 3, np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros(0),
-                       np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+        return EdgeFit(
+            *[np.zeros((0, 3))] * 3,
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0, bool),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros((0, 2)),
+            np.zeros(0),
+            np.zeros(0),
+        )
     return EdgeFit(*[np.concatenate(c) for c in zip(*parts)])
 
 

@@ -1,4 +1,5 @@
 """Plain functions on tetrahedral meshes."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -5,6 +5,7 @@ so the call runs here, started with ``cwd=`` the stage's scratch folder. Input a
 
     python -m qmdf.geometry.tetwild_worker IN.npz OUT.npz
 """
+
 from __future__ import annotations
 
 import json
@@ -18,10 +19,15 @@ import numpy as np
 def tetrahedralize(vertices: np.ndarray, faces: np.ndarray, scratch: Path, **params) -> tuple[np.ndarray, np.ndarray]:
     scratch.mkdir(parents=True, exist_ok=True)
     src, dst = scratch / "tetwild_in.npz", scratch / "tetwild_out.npz"
-    np.savez(src, vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int32),
-             params=json.dumps(params))
-    proc = subprocess.run([sys.executable, "-m", "qmdf.geometry.tetwild_worker", str(src), str(dst)],
-                          cwd=scratch, capture_output=True, text=True)
+    np.savez(
+        src, vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int32), params=json.dumps(params)
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "qmdf.geometry.tetwild_worker", str(src), str(dst)],
+        cwd=scratch,
+        capture_output=True,
+        text=True,
+    )
     if proc.returncode != 0 or not dst.exists():
         last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(f"fTetWild failed (exit {proc.returncode}): {last}")

@@ -1,4 +1,5 @@
 """Per-face quantities of a triangle mesh, written once."""
+
 from __future__ import annotations
 
 import numpy as np

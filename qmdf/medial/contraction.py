@@ -14,6 +14,7 @@ paper either: the vertices read q + ``outside_weight`` * max(sdf, 0) (``InsideQ`
 outside the shape and the vertices of thin parts stay in. Steps: a per-vertex ("vector") Adam with cosine decay.
 q is read from a lazily evaluated fine lattice (``lattice``), so 3k iterations cost seconds, not minutes.
 """
+
 from __future__ import annotations
 
 import math
@@ -75,8 +76,10 @@ class EnclosedVolume:
         from scipy import sparse
 
         self.cells = np.asarray(tets if tets is not None else faces)
-        self.sum_corners = sparse.csr_matrix((np.ones(self.cells.size), (self.cells.T.ravel(), np.arange(self.cells.size))),
-                                             shape=(n_vertices, self.cells.size))
+        self.sum_corners = sparse.csr_matrix(
+            (np.ones(self.cells.size), (self.cells.T.ravel(), np.arange(self.cells.size))),
+            shape=(n_vertices, self.cells.size),
+        )
 
     def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         c = self.cells
@@ -121,7 +124,7 @@ def _surface_volume(x, faces, grad):
 @njit(cache=True)
 def _vector_adam(x, g, m, s, lr, t, b1=0.9, b2=0.999):
     """Adam with one second moment per vertex (isotropic steps, as DCUDF), in place."""
-    c1, c2 = 1 - b1 ** t, 1 - b2 ** t
+    c1, c2 = 1 - b1**t, 1 - b2**t
     for n in range(x.shape[0]):
         sq = 0.0
         for k in range(3):
@@ -172,8 +175,15 @@ class LayerZip:
     not straight across, and the sideways pull retracted smooth sheets' rims (the exact ellipsoid's HD went
     from 8e-4 to 3.5e-3)."""
 
-    def __init__(self, faces: np.ndarray, candidates: np.ndarray, features: np.ndarray, near: float, reach: float,
-                 refresh: int = 10):
+    def __init__(
+        self,
+        faces: np.ndarray,
+        candidates: np.ndarray,
+        features: np.ndarray,
+        near: float,
+        reach: float,
+        refresh: int = 10,
+    ):
         from scipy.spatial import cKDTree
 
         self.faces, self.candidates, self.reach, self.refresh, self.near = faces, candidates, reach, refresh, near
@@ -220,12 +230,28 @@ def volume_and_gradient(x: np.ndarray, faces: np.ndarray | None, tets: np.ndarra
     return EnclosedVolume(len(x), faces, tets)(x)
 
 
-def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | None = None, *,
-             features: np.ndarray | None = None, iterations: int = 3000, lr: float = 5e-4, lr_final: float = 1e-6,
-             lambda_volume: float = 1.0, lambda_laplacian: float = 100.0, lattice: float = 1e-3,
-             feature_weight: float = 10.0, feature_reach: float = 0.02, zip_weight: float = 1000.0,
-             zip_reach: float = 0.02, zip_near: float = 0.05, outside_weight: float = 2.0, log_every: int = 25,
-             on_iteration=None):
+def contract(
+    field,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    tets: np.ndarray | None = None,
+    *,
+    features: np.ndarray | None = None,
+    iterations: int = 3000,
+    lr: float = 5e-4,
+    lr_final: float = 1e-6,
+    lambda_volume: float = 1.0,
+    lambda_laplacian: float = 100.0,
+    lattice: float = 1e-3,
+    feature_weight: float = 10.0,
+    feature_reach: float = 0.02,
+    zip_weight: float = 1000.0,
+    zip_reach: float = 0.02,
+    zip_near: float = 0.05,
+    outside_weight: float = 2.0,
+    log_every: int = 25,
+    on_iteration=None,
+):
     """The contracted vertices, the per-iteration log of the energy terms and the volume, the initial volume,
     and how many field evaluations it took (see the module doc for the energy; ``contract``'s stage config
     documents each weight). ``features``: feature points whose nearest vertices are pulled; ``on_iteration(done,
@@ -283,8 +309,14 @@ def contract(field, vertices: np.ndarray, faces: np.ndarray, tets: np.ndarray | 
             on_iteration(it + 1, iterations)
         if it % log_every == 0 or it == iterations - 1:
             geom = lambda_volume * max(vol, 0.0) / area0 + lambda_laplacian * e_lap
-            rec = {"iteration": it, "q_mean": float(q.mean()), "volume": vol, "laplacian": e_lap,
-                   "energy": float(q.mean()) + geom, "lr": step}
+            rec = {
+                "iteration": it,
+                "q_mean": float(q.mean()),
+                "volume": vol,
+                "laplacian": e_lap,
+                "energy": float(q.mean()) + geom,
+                "lr": step,
+            }
             if pull is not None:
                 rec["feature_distance"], rec["pulling_features"] = feature_distance, int(pull.active.sum())
             if zipper is not None:

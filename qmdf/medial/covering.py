@@ -1,6 +1,7 @@
 """The covering: the eps-isosurface of Q-MDF inside the shape, a closed double covering of the medial axis
 (paper Sec. 4.2, DCUDF). The field is evaluated only where the covering can pass: a coarse pass, then the
 narrow band, level by level."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,8 +27,11 @@ def covering_field(field, eps: float, lipschitz: float, voxel: float):
 def mesh_stats(mesh) -> dict:
     parts = mesh.split(only_watertight=False)
     return {
-        "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)), "components": len(parts),
-        "watertight": bool(mesh.is_watertight), "volume": float(mesh.volume) if mesh.is_watertight else None,
+        "vertices": int(len(mesh.vertices)),
+        "faces": int(len(mesh.faces)),
+        "components": len(parts),
+        "watertight": bool(mesh.is_watertight),
+        "volume": float(mesh.volume) if mesh.is_watertight else None,
         "genus": [int((2 - p.euler_number) // 2) for p in parts],
     }
 
@@ -39,8 +43,9 @@ def decimate(mesh, target_faces: int):
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(mesh.vertices), face_matrix=np.asarray(mesh.faces)))
-    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(target_faces), preservetopology=True,
-                                                preservenormal=True, planarquadric=True, qualitythr=0.3)
+    ms.meshing_decimation_quadric_edge_collapse(
+        targetfacenum=int(target_faces), preservetopology=True, preservenormal=True, planarquadric=True, qualitythr=0.3
+    )
     m = ms.current_mesh()
     out = trimesh.Trimesh(m.vertex_matrix(), m.face_matrix(), process=True)
     if out.is_watertight and out.volume < 0:
@@ -48,8 +53,18 @@ def decimate(mesh, target_faces: int):
     return out
 
 
-def build_covering(field, *, eps: float = 0.005, resolution: int = 256, coarse_step: int = 8, lipschitz: float = 2.0,
-                   extent: float = 0.55, speck_fraction: float = 0.01, max_faces: int = 30000, log=None):
+def build_covering(
+    field,
+    *,
+    eps: float = 0.005,
+    resolution: int = 256,
+    coarse_step: int = 8,
+    lipschitz: float = 2.0,
+    extent: float = 0.55,
+    speck_fraction: float = 0.01,
+    max_faces: int = 30000,
+    log=None,
+):
     """The covering mesh (specks dropped, decimated), its statistics and the grid nodes inside it (the
     ``cover`` stage's config documents each keyword)."""
     import trimesh
@@ -59,14 +74,21 @@ def build_covering(field, *, eps: float = 0.005, resolution: int = 256, coarse_s
     lo, hi = np.full(3, -extent), np.full(3, extent)
     voxel = 2 * extent / (resolution - 1)
     if eps < 0.5 * voxel and log is not None:  # a tube of radius eps around a curve-like axis falls between nodes
-        log.warning("cover.eps=%g is below half the grid step %.4g: thin parts of the covering may be "
-                    "missed; raise cover.resolution (or cover.eps)", eps, voxel)
-    grid = narrow_band_level_set(covering_field(field, eps, lipschitz, voxel), lo, hi, resolution,
-                                 coarse_step=coarse_step)
+        log.warning(
+            "cover.eps=%g is below half the grid step %.4g: thin parts of the covering may be "
+            "missed; raise cover.resolution (or cover.eps)",
+            eps,
+            voxel,
+        )
+    grid = narrow_band_level_set(
+        covering_field(field, eps, lipschitz, voxel), lo, hi, resolution, coarse_step=coarse_step
+    )
     mesh = grid.mesh()
     if mesh is None or len(mesh.faces) == 0:
-        raise QmdfError(f"Q-MDF never drops below cover.eps={eps} at the grid nodes inside the shape: no "
-                         f"covering (grid step {voxel:.4g}; is the field trained? raise cover.resolution or cover.eps)")
+        raise QmdfError(
+            f"Q-MDF never drops below cover.eps={eps} at the grid nodes inside the shape: no "
+            f"covering (grid step {voxel:.4g}; is the field trained? raise cover.resolution or cover.eps)"
+        )
     parts = mesh.split(only_watertight=False)
     biggest = max(len(p.faces) for p in parts)
     kept = [p for p in parts if len(p.faces) >= speck_fraction * biggest]
@@ -77,6 +99,11 @@ def build_covering(field, *, eps: float = 0.005, resolution: int = 256, coarse_s
         mesh = decimate(mesh, max_faces)
     stats = mesh_stats(mesh)
     stats["faces_before_decimation"] = faces_before
-    stats.update(dropped_specks=dropped, speck_rule=f"components with < {speck_fraction:g} x the largest's faces",
-                 evaluated_nodes=grid.evaluated, grid_nodes=int(np.prod(grid.values.shape)), eps=eps)
+    stats.update(
+        dropped_specks=dropped,
+        speck_rule=f"components with < {speck_fraction:g} x the largest's faces",
+        evaluated_nodes=grid.evaluated,
+        grid_nodes=int(np.prod(grid.values.shape)),
+        eps=eps,
+    )
     return mesh, stats, {"inside": grid.values < 0, "lo": grid.lo, "spacing": grid.spacing, "eps": eps}

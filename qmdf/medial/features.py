@@ -1,6 +1,7 @@
 """Points on a shape's sharp features (paper Sec. 4.3): sharp edges of a mesh sampled along their length,
 and, from a learned field, start points marched onto the edges and refined by the quadric error of the input
 points' tangent planes. The ``feature_detect`` stage's doc says when each is used."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,9 @@ def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float, return_index: 
     return (points, seg) if return_index else points
 
 
-def sharp_mesh_segments(vertices: np.ndarray, faces: np.ndarray, dihedral_deg: float,
-                        convex_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sharp_mesh_segments(
+    vertices: np.ndarray, faces: np.ndarray, dihedral_deg: float, convex_only: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """End points (a, b) of the edges whose two faces' normals differ by more than dihedral_deg, and the mean
     of those two normals, on the mesh with coincident vertices merged (OBJ/STL files repeat them per face,
     which hides every adjacency). ``convex_only``: the medial axis reaches convex edges only; at a concave
@@ -46,8 +48,9 @@ def offset_gradients(field, p: np.ndarray, offset: float) -> np.ndarray:
     return g / np.maximum(np.linalg.norm(g, axis=2, keepdims=True), 1e-12)
 
 
-def march_to_features(field, start: np.ndarray, steps: int = 60, tol: float = 5e-4,
-                      offset: float = 0.004) -> np.ndarray:
+def march_to_features(
+    field, start: np.ndarray, steps: int = 60, tol: float = 5e-4, offset: float = 0.004
+) -> np.ndarray:
     """Each start point marched along g1 + g2 (the means of the two clusters of SDF gradients at six
     ``offset`` samples around it) by |sdf| per step, until |sdf| < ``tol`` (paper Sec. 4.3)."""
     p = np.asarray(start, np.float64).copy()

@@ -8,6 +8,7 @@ whose radius is the distance from the vertex to the surface, so the most direct 
   axis, too large off it).
 
 ``python -m qmdf.bench models export.radius=...`` compares them end to end."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,13 @@ import numpy as np
 RADIUS_SOURCES = ("data", "sdf", "mf")
 
 
-def mat_radii(vertices: np.ndarray, source: str, field=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
-              points: np.ndarray | None = None) -> np.ndarray:
+def mat_radii(
+    vertices: np.ndarray,
+    source: str,
+    field=None,
+    mesh: tuple[np.ndarray, np.ndarray] | None = None,
+    points: np.ndarray | None = None,
+) -> np.ndarray:
     """Radii (unit box) of ``vertices`` from ``source`` (see the module doc). ``data`` uses ``mesh`` when given,
     else ``points``."""
     v = np.asarray(vertices, np.float64)

@@ -7,6 +7,7 @@ off the axis (the covering's outer shell), in q's upper band (``valley_share``),
 around a curve, a step across a sheet), or covering a spot another square of lower q already covers (the node
 layers beside a sheet). Whatever the rules release, the collapse only removes what keeps the homotopy type.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -74,8 +75,9 @@ def _keep_levels(inside: np.ndarray, q: np.ndarray, eps: float, share: float, re
     return floor + share * (eps - floor)
 
 
-def _covered_squares(x: np.ndarray, squares: np.ndarray, proper: np.ndarray, node_q: np.ndarray,
-                     radius: float) -> np.ndarray:
+def _covered_squares(
+    x: np.ndarray, squares: np.ndarray, proper: np.ndarray, node_q: np.ndarray, radius: float
+) -> np.ndarray:
     """Proper squares placed onto a spot that a square of lower q already covers (the node layers beside a
     sheet all land on it): taking squares by increasing q, each one whose placed centre lies within ``radius``
     of a square already taken is covered. Neighbours on one layer's staircase lie farther apart than half a
@@ -97,8 +99,9 @@ def _covered_squares(x: np.ndarray, squares: np.ndarray, proper: np.ndarray, nod
     return out
 
 
-def _redundant_edges(x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node_q: np.ndarray,
-                     short: float, reach: float) -> np.ndarray:
+def _redundant_edges(
+    x: np.ndarray, edges: np.ndarray, squares: np.ndarray, node_q: np.ndarray, short: float, reach: float
+) -> np.ndarray:
     """Edges bounding no square that are placed almost to a point (shorter than ``short``: across a sheet),
     onto a sheet (within ``reach`` of a square's placed centre: a removed layer's side), onto the same spot as
     another lone edge of lower q (within half of ``reach``), or dangling with the loose end within ``reach`` of
@@ -136,9 +139,18 @@ def _lone_edges(cx: CubicalComplex) -> np.ndarray:
     return np.sort(cx.edges, axis=1)[edges_off_polygons(cx.edges, cx.squares)]
 
 
-def single_sheet(inside: np.ndarray, q: np.ndarray, lo: np.ndarray, spacing: np.ndarray, membrane_vertices: np.ndarray,
-                 membrane_faces: np.ndarray, eps: float, valley_share: float = 0.5, off_axis: float = 0.75,
-                 fin_area: float = 0.25) -> Sheet:
+def single_sheet(
+    inside: np.ndarray,
+    q: np.ndarray,
+    lo: np.ndarray,
+    spacing: np.ndarray,
+    membrane_vertices: np.ndarray,
+    membrane_faces: np.ndarray,
+    eps: float,
+    valley_share: float = 0.5,
+    off_axis: float = 0.75,
+    fin_area: float = 0.25,
+) -> Sheet:
     """The single sheet of the grid nodes ``inside`` the covering (q at them), placed on the membrane.
 
     The cubes collapse first, in q's order. Then squares and edges may collapse where they are off the axis

@@ -12,6 +12,7 @@ A collapse must satisfy the link condition Lk(a) & Lk(b) = Lk(ab), which keeps t
 simplicial complex, seams and lone edges included (Dey et al. 1999; Attali, Lieutier & Salinas 2012), and must
 not turn any surviving face over by more than ``max_turn_deg``.
 """
+
 from __future__ import annotations
 
 import heapq
@@ -150,8 +151,9 @@ class _Quadrics:
             np.add.at(self.c, vertices[:, col], c)
 
 
-def initial_quadrics(m: np.ndarray, faces: np.ndarray, edges: np.ndarray, boundary_weight: float,
-                     tips: np.ndarray, regular: float) -> _Quadrics:
+def initial_quadrics(
+    m: np.ndarray, faces: np.ndarray, edges: np.ndarray, boundary_weight: float, tips: np.ndarray, regular: float
+) -> _Quadrics:
     Q = _Quadrics(len(m))
     x, r = m[:, :3], m[:, 3]
     if len(faces):
@@ -173,8 +175,12 @@ def initial_quadrics(m: np.ndarray, faces: np.ndarray, edges: np.ndarray, bounda
             length = np.linalg.norm(pn, axis=1)
             good = length > 1e-14
             pn = pn[good] / length[good, None]
-            Q.add_planes(e[good], np.column_stack([pn, np.zeros(int(good.sum()))]),
-                         (pn * x[e[good, 0]]).sum(1), boundary_weight * (t[good] * t[good]).sum(1))
+            Q.add_planes(
+                e[good],
+                np.column_stack([pn, np.zeros(int(good.sum()))]),
+                (pn * x[e[good, 0]]).sum(1),
+                boundary_weight * (t[good] * t[good]).sum(1),
+            )
     # lone edges: the distance to the edge's line, and the radius along it, at both ends
     if len(edges):
         t = x[edges[:, 1]] - x[edges[:, 0]]
@@ -199,9 +205,16 @@ def initial_quadrics(m: np.ndarray, faces: np.ndarray, edges: np.ndarray, bounda
     return Q
 
 
-def simplify_medial_mesh(vertices: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray,
-                         target_vertices: int, boundary_weight: float = 1.0, max_turn_deg: float = 60.0,
-                         tips: np.ndarray | None = None) -> SimplifyResult:
+def simplify_medial_mesh(
+    vertices: np.ndarray,
+    radii: np.ndarray,
+    edges: np.ndarray,
+    faces: np.ndarray,
+    target_vertices: int,
+    boundary_weight: float = 1.0,
+    max_turn_deg: float = 60.0,
+    tips: np.ndarray | None = None,
+) -> SimplifyResult:
     """Collapse edges, cheapest SQEM first, until ``target_vertices`` remain or no allowed collapse is left.
     ``tips``: a mask of vertices to keep in place (sharp-feature tips)."""
     m = np.column_stack([np.asarray(vertices, np.float64), np.asarray(radii, np.float64)])
@@ -315,8 +328,14 @@ def simplify_medial_mesh(vertices: np.ndarray, radii: np.ndarray, edges: np.ndar
     index = np.full(n, -1)
     index[alive] = np.arange(int(alive.sum()))
     out_faces = np.array([[index[w] for w in fv[f]] for f in np.flatnonzero(face_alive)], np.int64).reshape(-1, 3)
-    out_edges = np.array(sorted({(index[v], index[u]) for v in np.flatnonzero(alive) for u in lone[v] if v < u}),
-                         np.int64).reshape(-1, 2)
-    stats = {"vertices_before": n, "vertices": int(alive.sum()), "collapses": collapses, "link_rejected": rejected,
-             "turn_rejected": flipped}
+    out_edges = np.array(
+        sorted({(index[v], index[u]) for v in np.flatnonzero(alive) for u in lone[v] if v < u}), np.int64
+    ).reshape(-1, 2)
+    stats = {
+        "vertices_before": n,
+        "vertices": int(alive.sum()),
+        "collapses": collapses,
+        "link_rejected": rejected,
+        "turn_rejected": flipped,
+    }
     return SimplifyResult(m[alive, :3], m[alive, 3], out_edges, out_faces, stats)

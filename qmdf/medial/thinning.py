@@ -13,6 +13,7 @@ all lie above ``keep_q`` away from the curve, go down to a polyline. The cells a
 grid (a cell's doubled coordinate is odd along each axis it spans), so a cell's faces and cofaces are its
 +-1 neighbours along its odd and even axes.
 """
+
 from __future__ import annotations
 
 import heapq
@@ -136,7 +137,7 @@ def _collapse(cells, values, keep_q):
         cells[ti, tj, tk] = 0
         removed += 1
         # faces of sigma and of tau lost a coface: any now free becomes a candidate
-        for (ci, cj, ck) in ((si, sj, sk), (ti, tj, tk)):
+        for ci, cj, ck in ((si, sj, sk), (ti, tj, tk)):
             nf = 0
             c = (ci, cj, ck)
             for ax in range(3):
@@ -226,5 +227,11 @@ def _read_complex(cells: np.ndarray, lo: np.ndarray) -> CubicalComplex:
     u = eye[np.argmax(so, axis=1)]  # the first odd axis
     w = eye[2 - np.argmax(so[:, ::-1], axis=1)]  # the last odd axis
     squares = np.column_stack([corner(sp - u - w), corner(sp + u - w), corner(sp + u + w), corner(sp - u + w)])
-    return CubicalComplex(verts // 2 + lo, edges.astype(np.int64).reshape(-1, 2), squares.astype(np.int64).reshape(-1, 4),
-                          int((dim == 3).sum()), sp, ep)
+    return CubicalComplex(
+        verts // 2 + lo,
+        edges.astype(np.int64).reshape(-1, 2),
+        squares.astype(np.int64).reshape(-1, 4),
+        int((dim == 3).sum()),
+        sp,
+        ep,
+    )

@@ -1,4 +1,5 @@
 """``python -m qmdf.plugins``: every registered stage and component, and where it came from."""
+
 from __future__ import annotations
 
 import sys

@@ -1,5 +1,6 @@
 """Discovery: the built-in components and every installed plugin's, imported into the registries once
 (``qmdf.registry`` holds the registries themselves and imports nothing of qmdf's)."""
+
 from __future__ import annotations
 
 from qmdf.registry import DEGRADATIONS, SHAPES, STAGES, Registry

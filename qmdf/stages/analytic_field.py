@@ -3,6 +3,7 @@
 ``pipeline.stages=[sample,analytic_field,cover,tetrahedralize,contract,sheet,export,evaluate] input.shape=torus``
 proves the extraction on the exact answer, independently of training.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,6 +1,7 @@
 """``cover``: the eps-isosurface of Q-MDF inside the shape, a closed double covering of the medial axis
 (paper Sec. 4.2, DCUDF). The field is evaluated only where the covering can pass: a coarse pass, then the
 narrow band, level by level (``qmdf.medial.covering``)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,15 +14,24 @@ from qmdf.stage import Stage, StageContext, register_stage
 @dataclass
 class CoverConfig:
     eps: float = param(0.005, gt=0, doc="the isovalue of Q-MDF (paper: 0.005)")
-    eps_from_field: bool = param(True, doc="raise eps to the field's noise floor on its axis (the 99th percentile of q's "
-                                 "lowest value along train's medial rays), so the covering has no holes where q's valley "
-                                 "stays above eps; false: eps as given")
+    eps_from_field: bool = param(
+        True,
+        doc="raise eps to the field's noise floor on its axis (the 99th percentile of q's "
+        "lowest value along train's medial rays), so the covering has no holes where q's valley "
+        "stays above eps; false: eps as given",
+    )
     resolution: int = param(256, ge=16, le=1024, doc="grid nodes along the unit box (paper: 256)")
     coarse_step: int = param(8, ge=1, doc="first-pass spacing in grid cells; refined by halves near the covering")
     lipschitz: float = param(2.0, ge=1, doc="assumed bound on |grad q| when deciding where to refine (safety margin)")
     extent: float = param(0.55, gt=0, doc="half side of the grid box around the origin (the shape is in [-0.5, 0.5])")
-    speck_fraction: float = param(0.01, ge=0, lt=1, doc="drop components with fewer faces than this share of the largest")
-    max_faces: int = param(30000, ge=0, doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction and export cost scale with it (box: 60k faces -> 84 s, 30k -> 54 s, same accuracy; bench extraction)")
+    speck_fraction: float = param(
+        0.01, ge=0, lt=1, doc="drop components with fewer faces than this share of the largest"
+    )
+    max_faces: int = param(
+        30000,
+        ge=0,
+        doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction and export cost scale with it (box: 60k faces -> 84 s, 30k -> 54 s, same accuracy; bench extraction)",
+    )
 
 
 @register_stage("cover")
@@ -40,8 +50,11 @@ class Cover(Stage):
         cfg: CoverConfig = ctx.cfg
         floor = (ctx.load("training").get("axis_q") or {}).get("p99") if ctx.has("training") else None
         if cfg.eps_from_field and floor is not None and floor > cfg.eps:
-            ctx.log.info("cover.eps %.4g raised to %.4g, the field's noise floor on its axis (cover.eps_from_field)",
-                         cfg.eps, floor)
+            ctx.log.info(
+                "cover.eps %.4g raised to %.4g, the field's noise floor on its axis (cover.eps_from_field)",
+                cfg.eps,
+                floor,
+            )
             cfg = dataclasses.replace(cfg, eps=float(floor))
         from qmdf.medial.covering import build_covering
 
@@ -53,6 +66,14 @@ class Cover(Stage):
         ctx.save("covering", mesh)
         ctx.save("covering_stats", stats)
         ctx.save("covering_grid", grid)
-        ctx.log.info("covering: %d vertices, %d components (genus %s), volume %.3g, %d specks dropped; field evaluated "
-                     "at %d of %d grid nodes", stats["vertices"], stats["components"], stats["genus"],
-                     stats["volume"] or float("nan"), stats["dropped_specks"], stats["evaluated_nodes"], stats["grid_nodes"])
+        ctx.log.info(
+            "covering: %d vertices, %d components (genus %s), volume %.3g, %d specks dropped; field evaluated "
+            "at %d of %d grid nodes",
+            stats["vertices"],
+            stats["components"],
+            stats["genus"],
+            stats["volume"] or float("nan"),
+            stats["dropped_specks"],
+            stats["evaluated_nodes"],
+            stats["grid_nodes"],
+        )

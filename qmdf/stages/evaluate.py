@@ -1,4 +1,5 @@
 """``evaluate``: the paper's metrics of the run's MAT against the input (Sec. 5.1), in ``metrics.json``."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -15,14 +16,23 @@ from qmdf.stage import Stage, StageContext, register_stage
 @dataclass
 class EvaluateConfig:
     samples: int = param(100_000, ge=100, doc="samples per surface for CD / HD")
-    resolution: int = param(128, ge=16, le=1024, doc="grid of the meshed reconstruction (sampling, pictures, mesh output)")
+    resolution: int = param(
+        128, ge=16, le=1024, doc="grid of the meshed reconstruction (sampling, pictures, mesh output)"
+    )
     picture: bool = param(True, doc="write reconstruction.png coloured by the distance to the reference")
-    fold_deg: float = param(150.0, gt=90, lt=180, doc="a closed membrane's boundary: edges where the normals turn by more than this")
-    field_samples: int = param(100_000, ge=0, doc="volume samples for the field's sign accuracy against the reference mesh (0: skip)")
-    reference: Optional[str] = param(None, doc="a mesh or point file, in the input's units, to score against instead of "
-                                     "the input: the shape a point cloud was sampled from (a sparse cloud as its own "
-                                     "reference scores its gaps: the 2,000-point bunny's CD floor is about 1e-2); a mesh "
-                                     "also gives the field's sign accuracy")
+    fold_deg: float = param(
+        150.0, gt=90, lt=180, doc="a closed membrane's boundary: edges where the normals turn by more than this"
+    )
+    field_samples: int = param(
+        100_000, ge=0, doc="volume samples for the field's sign accuracy against the reference mesh (0: skip)"
+    )
+    reference: Optional[str] = param(
+        None,
+        doc="a mesh or point file, in the input's units, to score against instead of "
+        "the input: the shape a point cloud was sampled from (a sparse cloud as its own "
+        "reference scores its gaps: the 2,000-point bunny's CD floor is about 1e-2); a mesh "
+        "also gives the field's sign accuracy",
+    )
 
     def check(self) -> list[tuple[str, str]]:
         from qmdf.geometry.io import MESH_SUFFIXES, POINT_SUFFIXES
@@ -43,8 +53,15 @@ class Evaluate(Stage):
 
     Config = EvaluateConfig
     inputs = {"mat": MAT}
-    optional_inputs = {"surface": MESH, "clean_points": POINTS, "points": POINTS, "contracted_tets": TETS, "reconstruction": MESH,
-                       "field": FIELD, "normalization": NORMALIZATION}
+    optional_inputs = {
+        "surface": MESH,
+        "clean_points": POINTS,
+        "points": POINTS,
+        "contracted_tets": TETS,
+        "reconstruction": MESH,
+        "field": FIELD,
+        "normalization": NORMALIZATION,
+    }
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
     version = "2"  # 2: the field's sign accuracy and metric inside
@@ -82,8 +99,18 @@ class Evaluate(Stage):
         ref_v, ref_f, what = self._reference(ctx)
         picture = ctx.stage_dir / "reconstruction.png" if ctx.cfg.picture else None
         given = ctx.load("reconstruction") if ctx.has("reconstruction") else None
-        metrics, recon = score_mat(mat, ref_v, ref_f, ctx.cfg.samples, ctx.cfg.resolution, ctx.seed, picture,
-                                   return_mesh=True, fold_deg=ctx.cfg.fold_deg, recon_mesh=given)
+        metrics, recon = score_mat(
+            mat,
+            ref_v,
+            ref_f,
+            ctx.cfg.samples,
+            ctx.cfg.resolution,
+            ctx.seed,
+            picture,
+            return_mesh=True,
+            fold_deg=ctx.cfg.fold_deg,
+            recon_mesh=given,
+        )
         metrics["reference"] = what
         if ctx.has("contracted_tets"):  # the paper's chi: V - E + F - C of the contracted covering
             from qmdf.geometry.metrics import euler_tetrahedral
@@ -96,12 +123,20 @@ class Evaluate(Stage):
             from qmdf.fields.quality import field_quality
 
             metrics["field"] = field_quality(ctx.load("field"), ref_v, ref_f, ctx.cfg.field_samples, ctx.seed)
-            ctx.log.info("field: sign accuracy %.4f, mean |grad sdf| inside %s", metrics["field"]["sign_accuracy"],
-                         metrics["field"]["grad_sdf_inside"])
+            ctx.log.info(
+                "field: sign accuracy %.4f, mean |grad sdf| inside %s",
+                metrics["field"]["sign_accuracy"],
+                metrics["field"]["grad_sdf_inside"],
+            )
         ctx.save("metrics", metrics)
         if given is None:
             ctx.save("reconstruction", recon)
         ctx.log.info(
-            "CD %.3e  HD %.3e  chi %d  V %d  F %d  (%s)", metrics["chamfer"], metrics["hausdorff"], metrics["chi"],
-            metrics["vertices"], metrics["faces"], metrics["reference"],
+            "CD %.3e  HD %.3e  chi %d  V %d  F %d  (%s)",
+            metrics["chamfer"],
+            metrics["hausdorff"],
+            metrics["chi"],
+            metrics["vertices"],
+            metrics["faces"],
+            metrics["reference"],
         )

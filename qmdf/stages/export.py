@@ -2,6 +2,7 @@
 ``radius`` vertex property, OBJ; and the surface the MAT reconstructs (union of its primitives' envelopes),
 meshed. The MAT is the single sheet when a ``sheet`` stage ran, else the contracted membrane (radius per vertex
 from ``radius``, ``qmdf.medial.radii``); the membrane is written as ``membrane.ma`` either way, for comparison."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,10 +17,16 @@ from qmdf.stages.inputs import input_data
 
 @dataclass
 class ExportConfig:
-    reconstruction_resolution: int = param(128, ge=16, le=1024, doc="grid nodes along the meshed reconstruction's longest side")
+    reconstruction_resolution: int = param(
+        128, ge=16, le=1024, doc="grid nodes along the meshed reconstruction's longest side"
+    )
     picture: bool = param(True, doc="the medial mesh coloured by radius, and the covering before/after contraction")
-    radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius: data (distance to the input mesh or "
-                        "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data")
+    radius: str = param(
+        "data",
+        choices=RADIUS_SOURCES,
+        doc="each vertex's radius: data (distance to the input mesh or "
+        "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data",
+    )
 
 
 @register_stage("export")
@@ -28,12 +35,24 @@ class Export(Stage):
 
     Config = ExportConfig
     inputs = {"membrane": MESH, "field": FIELD, "normalization": NORMALIZATION}
-    optional_inputs = {"covering": MESH, "surface": MESH, "points": POINTS, "input_info": JSON, "sheet": MAT,
-                       "sheet_stats": JSON}
-    outputs = {"mat": MAT, "mat_input_units": file_kind(".ma"), "mat_ply": file_kind(".ply"),
-               "mat_ply_input_units": file_kind(".ply"), "mat_obj": file_kind(".obj"),
-               "mat_obj_input_units": file_kind(".obj"), "reconstruction": MESH,
-               "membrane_mat": MAT}
+    optional_inputs = {
+        "covering": MESH,
+        "surface": MESH,
+        "points": POINTS,
+        "input_info": JSON,
+        "sheet": MAT,
+        "sheet_stats": JSON,
+    }
+    outputs = {
+        "mat": MAT,
+        "mat_input_units": file_kind(".ma"),
+        "mat_ply": file_kind(".ply"),
+        "mat_ply_input_units": file_kind(".ply"),
+        "mat_obj": file_kind(".obj"),
+        "mat_obj_input_units": file_kind(".obj"),
+        "reconstruction": MESH,
+        "membrane_mat": MAT,
+    }
     version = "2"  # 2: the single sheet when present; the membrane as membrane.ma
 
     def run(self, ctx: StageContext) -> None:
@@ -44,7 +63,9 @@ class Export(Stage):
         mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
         membrane = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
         ctx.save("membrane_mat", membrane)
-        use_sheet = ctx.has("sheet") and (ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True)
+        use_sheet = ctx.has("sheet") and (
+            ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True
+        )
         mat = ctx.load("sheet") if use_sheet else membrane
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
@@ -61,13 +82,30 @@ class Export(Stage):
             from qmdf.viz import render_mesh
 
             lone = mat.lone_edges()
-            render_mesh(ctx.stage_dir / "mat.png", v, mat.faces, radii, label="radius (unit box)",
-                        title=f"medial mesh: {len(v)} vertices, {len(mat.faces)} faces; lone edges black, seams red",
-                        lines=((lone, "black"), (seam_edges(mat.faces), "red")))
+            render_mesh(
+                ctx.stage_dir / "mat.png",
+                v,
+                mat.faces,
+                radii,
+                label="radius (unit box)",
+                title=f"medial mesh: {len(v)} vertices, {len(mat.faces)} faces; lone edges black, seams red",
+                lines=((lone, "black"), (seam_edges(mat.faces), "red")),
+            )
             if ctx.has("covering"):
                 cov = ctx.load("covering")
                 render_mesh(ctx.stage_dir / "covering_before.png", cov.vertices, cov.faces, title="eps-covering")
-                render_mesh(ctx.stage_dir / "covering_after.png", membrane.vertices, membrane.faces,
-                            title="after contraction (the membrane)")
-        ctx.log.info("MAT (%s): %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
-                     "single sheet" if use_sheet else "membrane", len(v), len(mat.faces), radii.min(), radii.max(), len(recon.faces))
+                render_mesh(
+                    ctx.stage_dir / "covering_after.png",
+                    membrane.vertices,
+                    membrane.faces,
+                    title="after contraction (the membrane)",
+                )
+        ctx.log.info(
+            "MAT (%s): %d vertices, %d faces, radius %.3g..%.3g (unit box); reconstruction %d faces",
+            "single sheet" if use_sheet else "membrane",
+            len(v),
+            len(mat.faces),
+            radii.min(),
+            radii.max(),
+            len(recon.faces),
+        )

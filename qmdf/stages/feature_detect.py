@@ -17,6 +17,7 @@ apart, the planes come from the points themselves. With
 ``face_normals`` each feature point also carries the mean of its two planes' normals, so that
 feature_retrain can walk the edge's inward bisector, as it does from a mesh.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -32,28 +33,57 @@ from qmdf.stage import Stage, StageContext, register_stage
 
 @dataclass
 class FeatureDetectConfig:
-    source: str = param("auto", choices=("auto", "mesh", "field"), doc="auto: the input mesh when there is one, else the field procedure")
-    dihedral_deg: float = param(30.0, gt=0, lt=180, doc="mesh: an edge is sharp when its faces' normals turn by more than this")
-    convex_only: bool = param(True, doc="mesh: keep convex sharp edges only (the medial axis never reaches a concave one)")
+    source: str = param(
+        "auto",
+        choices=("auto", "mesh", "field"),
+        doc="auto: the input mesh when there is one, else the field procedure",
+    )
+    dihedral_deg: float = param(
+        30.0, gt=0, lt=180, doc="mesh: an edge is sharp when its faces' normals turn by more than this"
+    )
+    convex_only: bool = param(
+        True, doc="mesh: keep convex sharp edges only (the medial axis never reaches a concave one)"
+    )
     spacing: float = param(0.005, gt=0, doc="distance between feature samples along an edge (unit box)")
-    boundary_fold_deg: float = param(150.0, gt=90, lt=180, doc="field: a membrane edge is on its boundary when its faces fold back by more than this")
-    max_radius: float = param(0.03, gt=0, doc="field: boundary edges where the medial radius and MF are both below this")
+    boundary_fold_deg: float = param(
+        150.0, gt=90, lt=180, doc="field: a membrane edge is on its boundary when its faces fold back by more than this"
+    )
+    max_radius: float = param(
+        0.03, gt=0, doc="field: boundary edges where the medial radius and MF are both below this"
+    )
     offset: float = param(0.004, gt=0, doc="field: distance of the six axis-offset SDF-gradient samples")
     march_steps: int = param(60, ge=1)
     march_tol: float = param(5e-4, gt=0, doc="field: marching stops once |sdf| is below this")
     qem_k: int = param(16, ge=3, doc="field: input points in each point's quadric")
-    qem_regularization: float = param(1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put")
-    field_seeds: str = param("both", choices=("membrane", "points", "both"), doc="field: the paper's route from the "
-                             "first MAT's boundary, the input points' two-plane fits, or both")
+    qem_regularization: float = param(
+        1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put"
+    )
+    field_seeds: str = param(
+        "both",
+        choices=("membrane", "points", "both"),
+        doc="field: the paper's route from the first MAT's boundary, the input points' two-plane fits, or both",
+    )
     plane_min_points: int = param(4, ge=3, doc="field: neighbours each of the two planes must hold")
-    plane_tolerance: float = param(0.05, gt=0, doc="field: a neighbour farther than this fraction of the neighbourhood's "
-                                   "radius from both planes is no part of them (a corner's third face, noise)")
-    plane_normal_deg: float = param(45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than "
-                                    "this from the plane's normal")
-    arc_ratio: float = param(0.5, ge=0, doc="field: the two planes must fit the neighbours better than one circular "
-                             "arc across the edge by this factor (RMS), or it is a curved patch; 0: no such test")
-    face_normals: bool = param(True, doc="field: feature points carry their two planes' mean normal (feature_retrain's "
-                               "bisector samples); false: the paper's feature points alone")
+    plane_tolerance: float = param(
+        0.05,
+        gt=0,
+        doc="field: a neighbour farther than this fraction of the neighbourhood's "
+        "radius from both planes is no part of them (a corner's third face, noise)",
+    )
+    plane_normal_deg: float = param(
+        45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than this from the plane's normal"
+    )
+    arc_ratio: float = param(
+        0.5,
+        ge=0,
+        doc="field: the two planes must fit the neighbours better than one circular "
+        "arc across the edge by this factor (RMS), or it is a curved patch; 0: no such test",
+    )
+    face_normals: bool = param(
+        True,
+        doc="field: feature points carry their two planes' mean normal (feature_retrain's "
+        "bisector samples); false: the paper's feature points alone",
+    )
 
 
 @register_stage("feature_detect")
@@ -101,11 +131,18 @@ class FeatureDetect(Stage):
 
         need_mat = cfg.field_seeds != "points"
         if not ctx.has("field") or (need_mat and not ctx.has("mat")):
-            raise QmdfError("feature_detect on a point cloud needs a trained field" + (
-                " and a first MAT: put it after train, cover, contract and export in pipeline.stages" if need_mat else
-                ": put it after train in pipeline.stages"))
+            raise QmdfError(
+                "feature_detect on a point cloud needs a trained field"
+                + (
+                    " and a first MAT: put it after train, cover, contract and export in pipeline.stages"
+                    if need_mat
+                    else ": put it after train in pipeline.stages"
+                )
+            )
         field = ctx.load("field")
-        grads = field.evaluate(points, grad=True)["sdf_grad"] if cfg.field_seeds != "membrane" or cfg.face_normals else None
+        grads = (
+            field.evaluate(points, grad=True)["sdf_grad"] if cfg.field_seeds != "membrane" or cfg.face_normals else None
+        )
         found, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
         if need_mat:
             mat = ctx.load("mat")

@@ -7,6 +7,7 @@ are known (from a mesh, or from feature_detect's two-plane fits on a point cloud
 asked there. The training settings (backbone,
 losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
 keep the result before enhancement for comparison."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -26,9 +27,15 @@ class FeatureRetrainConfig:
     lr_final: float = param(1e-5, gt=0)
     weight_sdf: float = param(3000.0, ge=0, doc="L_sharp1 = mean |sdf| at the feature points (like the surface term)")
     weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean |mf| at the feature points")
-    bisector_weight: float = param(1000.0, ge=0, doc="not in the paper: mean |sdf + r| + |mf - r| at medial points "
-                                   "walked along the inward bisector of each feature (0: the paper's losses only)")
-    bisector_length: float = param(0.3, ge=0, doc="how far each bisector walk may go (unit box); the walks stop earlier where the sheet ends")
+    bisector_weight: float = param(
+        1000.0,
+        ge=0,
+        doc="not in the paper: mean |sdf + r| + |mf - r| at medial points "
+        "walked along the inward bisector of each feature (0: the paper's losses only)",
+    )
+    bisector_length: float = param(
+        0.3, ge=0, doc="how far each bisector walk may go (unit box); the walks stop earlier where the sheet ends"
+    )
     bisector_spacing: float = param(0.005, gt=0, doc="step of the bisector walks")
     bisector_batch: int = param(4096, ge=1, doc="bisector samples per training step")
 
@@ -59,36 +66,66 @@ class FeatureRetrain(Stage):
         features = ctx.load("feature_points")
         feats = features.points
         if len(feats) == 0:
-            raise QmdfError("feature_detect found no feature points; lower feature_detect.dihedral_deg or raise "
-                            "feature_detect.max_radius")
+            raise QmdfError(
+                "feature_detect found no feature points; lower feature_detect.dihedral_deg or raise "
+                "feature_detect.max_radius"
+            )
         points = ctx.load("points").points
         medial, radii = np.zeros((0, 3)), np.zeros(0)
         if cfg.bisector_weight > 0 and features.normals is not None:
             medial, radii = bisector_samples(feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing)
-        train_cfg = dataclasses.replace(ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False)
+        train_cfg = dataclasses.replace(
+            ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False
+        )
         sup = supervise(ctx, train_cfg)
         sampler = StepSampler(sup, train_cfg.surface_batch, train_cfg.volume_batch, ctx.seed)
         # the paper's L_sharp1 / L_sharp2 and the bisectors' medial samples, beside the route's own terms
-        losses = {**route_losses(train_cfg, sup.route), "sharp_sdf": {"weight": cfg.weight_sdf},
-                  "sharp_mf": {"weight": cfg.weight_mf},
-                  "sharp_medial": {"weight": cfg.bisector_weight, "batch": cfg.bisector_batch}}
-        module = FieldModule(build_net(field.meta["backbone"], field.meta["backbone_params"]),
-                             build_terms(losses, train_cfg.medial_field), sampler, steps=cfg.steps, lr=cfg.lr,
-                             lr_final=cfg.lr_final, medial_field=train_cfg.medial_field,
-                             ridge_every=train_cfg.ridge_every, ridge_start=train_cfg.ridge_start,
-                             anchors={"feature_points": feats, "medial_points": medial, "medial_radii": radii})
+        losses = {
+            **route_losses(train_cfg, sup.route),
+            "sharp_sdf": {"weight": cfg.weight_sdf},
+            "sharp_mf": {"weight": cfg.weight_mf},
+            "sharp_medial": {"weight": cfg.bisector_weight, "batch": cfg.bisector_batch},
+        }
+        module = FieldModule(
+            build_net(field.meta["backbone"], field.meta["backbone_params"]),
+            build_terms(losses, train_cfg.medial_field),
+            sampler,
+            steps=cfg.steps,
+            lr=cfg.lr,
+            lr_final=cfg.lr_final,
+            medial_field=train_cfg.medial_field,
+            ridge_every=train_cfg.ridge_every,
+            ridge_start=train_cfg.ridge_start,
+            anchors={"feature_points": feats, "medial_points": medial, "medial_radii": radii},
+        )
         module.net.load_state_dict(field.net.state_dict())
         device = fit(ctx, train_cfg, module, cfg.steps)
-        axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and train_cfg.medial_field else None
+        axis = (
+            axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and train_cfg.medial_field else None
+        )
         out = Field(module.net.cpu(), ctx.load("normalization"), field.meta, device="cpu")
         out.save(ctx.path("field"))
         before, after = field.evaluate(feats), out.evaluate(feats)
-        stats = {"steps": cfg.steps, "feature_points": int(len(feats)), "bisector_samples": int(len(medial)), "device": device,
-                 "feature_abs_sdf_before": float(abs(before["sdf"]).mean()), "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
-                 "feature_mf_before": float(abs(before["mf"]).mean()), "feature_mf_after": float(abs(after["mf"]).mean()),
-                 "history": module.history, "axis_q": axis}
+        stats = {
+            "steps": cfg.steps,
+            "feature_points": int(len(feats)),
+            "bisector_samples": int(len(medial)),
+            "device": device,
+            "feature_abs_sdf_before": float(abs(before["sdf"]).mean()),
+            "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
+            "feature_mf_before": float(abs(before["mf"]).mean()),
+            "feature_mf_after": float(abs(after["mf"]).mean()),
+            "history": module.history,
+            "axis_q": axis,
+        }
         ctx.save("training", stats)
-        ctx.log.info("feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e; %d bisector samples%s",
-                     len(feats), stats["feature_abs_sdf_before"], stats["feature_abs_sdf_after"], stats["feature_mf_before"],
-                     stats["feature_mf_after"], len(medial),
-                     "" if features.normals is not None else " (the feature points carry no face normals: none walked)")
+        ctx.log.info(
+            "feature_retrain: at %d feature points |sdf| %.2e -> %.2e, |mf| %.2e -> %.2e; %d bisector samples%s",
+            len(feats),
+            stats["feature_abs_sdf_before"],
+            stats["feature_abs_sdf_after"],
+            stats["feature_mf_before"],
+            stats["feature_mf_after"],
+            len(medial),
+            "" if features.normals is not None else " (the feature points carry no face normals: none walked)",
+        )

@@ -1,4 +1,5 @@
 """What several stages read from the run's inputs."""
+
 from __future__ import annotations
 
 import numpy as np

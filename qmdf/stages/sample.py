@@ -1,4 +1,5 @@
 """``sample``: the input (file or procedural shape) as a normalised point set, with optional degradations."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,8 +23,12 @@ from qmdf.stage import Stage, StageContext, register_stage
 
 @dataclass
 class SampleConfig:
-    n_points: int = param(20000, ge=10, doc="points sampled uniformly (by area) on a mesh input; point clouds keep their own points")
-    degradations: dict[str, Any] = param(factory=dict, doc="degradation name -> its settings, applied in order (python -m qmdf.plugins lists them)")
+    n_points: int = param(
+        20000, ge=10, doc="points sampled uniformly (by area) on a mesh input; point clouds keep their own points"
+    )
+    degradations: dict[str, Any] = param(
+        factory=dict, doc="degradation name -> its settings, applied in order (python -m qmdf.plugins lists them)"
+    )
 
     def check(self) -> list[tuple[str, str]]:
         problems: list[tuple[str, str]] = []
@@ -32,7 +37,9 @@ class SampleConfig:
                 problems.append((f"degradations.{name}", DEGRADATIONS.why_missing(name)))
                 continue
             entry = DEGRADATIONS.get(name)
-            problems += [(p.key, p.message) for p in schema.check_section(entry.config, params or {}, f"degradations.{name}")]
+            problems += [
+                (p.key, p.message) for p in schema.check_section(entry.config, params or {}, f"degradations.{name}")
+            ]
         return problems
 
 
@@ -89,7 +96,9 @@ class Sample(Stage):
         unit = PointSet(norm.to_unit(geom.points.points), geom.points.normals)
         rng = ctx.rng()
         if geom.is_mesh:
-            clean = outward_normals(sample_surface(unit.points, geom.faces, ctx.cfg.n_points, rng), unit.points, geom.faces, ctx.log)
+            clean = outward_normals(
+                sample_surface(unit.points, geom.faces, ctx.cfg.n_points, rng), unit.points, geom.faces, ctx.log
+            )
             ctx.save("surface", _trimesh(unit.points, geom.faces))
             warn_if_open(geom.faces, geom.source, ctx.log)
             what = f"mesh with {len(geom.points)} vertices, {len(geom.faces)} faces; sampled {len(clean)} points"
@@ -108,8 +117,15 @@ class Sample(Stage):
             )
         ctx.save("points", points)
         # what train's supervision may use: a degraded mesh stands for a scan, so only its points count
-        ctx.save("input_info", {"kind": "mesh" if geom.is_mesh else "points", "source": geom.source,
-                                "degradations": list(ctx.cfg.degradations), "normals": points.normals is not None})
+        ctx.save(
+            "input_info",
+            {
+                "kind": "mesh" if geom.is_mesh else "points",
+                "source": geom.source,
+                "degradations": list(ctx.cfg.degradations),
+                "normals": points.normals is not None,
+            },
+        )
         if ctx.cfg.degradations:  # else they are the points themselves: no second copy
             ctx.save("clean_points", clean)
         ctx.save("normalization", norm)
@@ -123,8 +139,12 @@ def warn_if_open(faces: np.ndarray, source: str, log) -> int:
 
     open_edges = len(single_face_edges(faces))
     if open_edges:
-        log.warning("%s is an open mesh (%d boundary edges): inside and outside come from its winding number, "
-                    "which bridges small holes; check 01_train/slices.png across large ones", source, open_edges)
+        log.warning(
+            "%s is an open mesh (%d boundary edges): inside and outside come from its winding number, "
+            "which bridges small holes; check 01_train/slices.png across large ones",
+            source,
+            open_edges,
+        )
     return open_edges
 
 

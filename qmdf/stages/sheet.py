@@ -2,6 +2,7 @@
 topology (``qmdf.medial.thinning``), placed on the contracted membrane (``qmdf.medial.sheet``), given radii
 from the input (``qmdf.medial.radii``) and simplified under the spherical quadric error without a change of
 topology (``qmdf.medial.simplify``). ``export`` writes it as the MAT; the membrane stays for comparison."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,25 +19,59 @@ from qmdf.stages.inputs import input_data
 
 @dataclass
 class SheetConfig:
-    valley_share: float = param(0.5, gt=0, le=1, doc="squares and edges whose q lies above this share of the way "
-                                "from q's local floor up to eps may collapse (the covering's outer shell)")
-    off_axis: float = param(0.75, gt=0, doc="squares whose corners lie farther than this many grid steps from the "
-                            "membrane are off the axis and may collapse")
-    fin_area: float = param(0.25, ge=0, lt=1, doc="placed squares below this share of a grid square's area are "
-                            "flat: a fin around a curve-like axis or a step across a sheet")
-    speck_fraction: float = param(0.01, ge=0, lt=1, doc="drop pieces of the covering's solid with fewer nodes than "
-                                  "this share of the largest's (cover's rule for its specks)")
-    max_layers: float = param(4.0, gt=1, doc="collapse on every k-th grid node, k the largest with the solid's "
-                              "thickness (about 2 eps) still spanning this many nodes: a thick covering (bunny: eps "
-                              "raised to 0.034, 2.2M nodes inside) left many layers and took 370 s at every node, "
-                              "5 s at every third")
-    compact_slack: float = param(1.5, ge=1, doc="a sheet whose simplification stops above this many times "
-                                 "target_vertices (link condition refusing on a tangled complex) is not compact: "
-                                 "export then writes the membrane as the MAT, with a warning")
-    radius: str = param("data", choices=RADIUS_SOURCES, doc="each vertex's radius before simplification (see export.radius)")
-    target_vertices: int = param(3000, ge=0, doc="simplify to this many vertices (0: no simplification); the teacup's CD over the membrane's: 1.18x at 3000, 1.25x at 2000, 0.96x unsimplified (136k vertices)")
-    boundary_weight: float = param(1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's "
-                                   "free boundary in place)")
+    valley_share: float = param(
+        0.5,
+        gt=0,
+        le=1,
+        doc="squares and edges whose q lies above this share of the way "
+        "from q's local floor up to eps may collapse (the covering's outer shell)",
+    )
+    off_axis: float = param(
+        0.75,
+        gt=0,
+        doc="squares whose corners lie farther than this many grid steps from the "
+        "membrane are off the axis and may collapse",
+    )
+    fin_area: float = param(
+        0.25,
+        ge=0,
+        lt=1,
+        doc="placed squares below this share of a grid square's area are "
+        "flat: a fin around a curve-like axis or a step across a sheet",
+    )
+    speck_fraction: float = param(
+        0.01,
+        ge=0,
+        lt=1,
+        doc="drop pieces of the covering's solid with fewer nodes than "
+        "this share of the largest's (cover's rule for its specks)",
+    )
+    max_layers: float = param(
+        4.0,
+        gt=1,
+        doc="collapse on every k-th grid node, k the largest with the solid's "
+        "thickness (about 2 eps) still spanning this many nodes: a thick covering (bunny: eps "
+        "raised to 0.034, 2.2M nodes inside) left many layers and took 370 s at every node, "
+        "5 s at every third",
+    )
+    compact_slack: float = param(
+        1.5,
+        ge=1,
+        doc="a sheet whose simplification stops above this many times "
+        "target_vertices (link condition refusing on a tangled complex) is not compact: "
+        "export then writes the membrane as the MAT, with a warning",
+    )
+    radius: str = param(
+        "data", choices=RADIUS_SOURCES, doc="each vertex's radius before simplification (see export.radius)"
+    )
+    target_vertices: int = param(
+        3000,
+        ge=0,
+        doc="simplify to this many vertices (0: no simplification); the teacup's CD over the membrane's: 1.18x at 3000, 1.25x at 2000, 0.96x unsimplified (136k vertices)",
+    )
+    boundary_weight: float = param(
+        1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's free boundary in place)"
+    )
     max_turn_deg: float = param(60.0, gt=0, le=180, doc="refuse a collapse that turns a face by more than this")
     tip_reach: float = param(0.01, gt=0, doc="vertices within this of a feature point stay in place (unit box)")
 
@@ -80,13 +115,31 @@ class Sheet(Stage):
         q = np.full(inside.shape, np.inf)
         q[tuple(nodes.T)] = field.evaluate(grid["lo"] + nodes * spacing)["q"]
         membrane = ctx.load("membrane")
-        sheet = single_sheet(inside, q, grid["lo"], spacing, np.asarray(membrane.vertices),
-                             np.asarray(membrane.faces), grid["eps"], cfg.valley_share, cfg.off_axis, cfg.fin_area)
+        sheet = single_sheet(
+            inside,
+            q,
+            grid["lo"],
+            spacing,
+            np.asarray(membrane.vertices),
+            np.asarray(membrane.faces),
+            grid["eps"],
+            cfg.valley_share,
+            cfg.off_axis,
+            cfg.fin_area,
+        )
         mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
         radii = mat_radii(sheet.vertices, cfg.radius, field, mesh, points)
-        stats = {"nodes_inside": int(inside.sum()), "grid_stride": stride, "collapse": sheet.stats,
-                 "before": {"vertices": len(sheet.vertices), "edges": len(sheet.edges), "faces": len(sheet.faces),
-                            "chi": sheet.euler}}
+        stats = {
+            "nodes_inside": int(inside.sum()),
+            "grid_stride": stride,
+            "collapse": sheet.stats,
+            "before": {
+                "vertices": len(sheet.vertices),
+                "edges": len(sheet.edges),
+                "faces": len(sheet.faces),
+                "chi": sheet.euler,
+            },
+        }
         v, e, f = sheet.vertices, sheet.edges, sheet.faces
         if cfg.target_vertices and len(v) > cfg.target_vertices:
             tips = None
@@ -100,19 +153,37 @@ class Sheet(Stage):
         mat = MedialMesh(v, radii, e, f).with_face_edges()
         from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
 
-        stats["after"] = {"vertices": len(v), "edges": int(len(mat.edges)), "faces": len(f),
-                          "lone_edges": int(len(e)), "chi": euler_medial_mesh(len(v), e, f),
-                          "seam_edges": int(len(seam_edges(f))), "rim_edges": int(len(single_face_edges(f)))}
+        stats["after"] = {
+            "vertices": len(v),
+            "edges": int(len(mat.edges)),
+            "faces": len(f),
+            "lone_edges": int(len(e)),
+            "chi": euler_medial_mesh(len(v), e, f),
+            "seam_edges": int(len(seam_edges(f))),
+            "rim_edges": int(len(single_face_edges(f))),
+        }
         stats["compact"] = not cfg.target_vertices or len(v) <= cfg.compact_slack * cfg.target_vertices
         if not stats["compact"]:
-            ctx.log.warning("the single sheet is not compact: simplification stopped at %d vertices (target %d; the "
-                            "link condition refused %s collapses on a tangled complex, %d seam edges). export writes "
-                            "the membrane as the MAT; the sheet stays in %s", len(v), cfg.target_vertices,
-                            stats.get("simplify", {}).get("link_rejected"), stats["after"]["seam_edges"],
-                            ctx.stage_dir / "sheet.ma")
+            ctx.log.warning(
+                "the single sheet is not compact: simplification stopped at %d vertices (target %d; the "
+                "link condition refused %s collapses on a tangled complex, %d seam edges). export writes "
+                "the membrane as the MAT; the sheet stays in %s",
+                len(v),
+                cfg.target_vertices,
+                stats.get("simplify", {}).get("link_rejected"),
+                stats["after"]["seam_edges"],
+                ctx.stage_dir / "sheet.ma",
+            )
         ctx.save("sheet", mat)
         ctx.save("sheet_stats", stats)
-        ctx.log.info("single sheet: %d vertices, %d faces, %d lone edges, chi %d, %d seam edges (before "
-                     "simplification: %d vertices, chi %d)", len(v), len(f), len(e), stats["after"]["chi"],
-                     stats["after"]["seam_edges"], stats["before"]["vertices"], stats["before"]["chi"])
-
+        ctx.log.info(
+            "single sheet: %d vertices, %d faces, %d lone edges, chi %d, %d seam edges (before "
+            "simplification: %d vertices, chi %d)",
+            len(v),
+            len(f),
+            len(e),
+            stats["after"]["chi"],
+            stats["after"]["seam_edges"],
+            stats["before"]["vertices"],
+            stats["before"]["chi"],
+        )

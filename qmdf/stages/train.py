@@ -1,5 +1,6 @@
 """``train``: the joint SDF + medial field with PyTorch Lightning, supervised by what the input carries (the mesh,
 oriented or raw points: ``qmdf.fields.supervision``), or by the raw points alone as in the paper."""
+
 from __future__ import annotations
 
 import sys
@@ -35,40 +36,72 @@ def _default_backbones() -> dict:
 
 @dataclass
 class TrainConfig:
-    backbone: str = param("grid", doc="network trunk (python -m qmdf.plugins lists them); grid resolves the teacup's "
-                          "0.046-thick walls with |grad sdf| 1.00 inside where the 128x4 MLP reached 0.16-0.55 (same 2,000 steps)")
-    backbones: dict[str, Any] = param(factory=_default_backbones, doc="each backbone's settings; the chosen one is used")
+    backbone: str = param(
+        "grid",
+        doc="network trunk (python -m qmdf.plugins lists them); grid resolves the teacup's "
+        "0.046-thick walls with |grad sdf| 1.00 inside where the 128x4 MLP reached 0.16-0.55 (same 2,000 steps)",
+    )
+    backbones: dict[str, Any] = param(
+        factory=_default_backbones, doc="each backbone's settings; the chosen one is used"
+    )
     medial_field: bool = param(True, doc="train the medial field too; false: the paper's 'w/o MF' ablation")
-    supervision: str = param("auto", choices=("auto", "mesh", "oriented_points", "raw_points", "paper"),
-                             doc="what the field learns from: auto picks mesh (an undegraded mesh input), oriented_points "
-                                 "(points with normals) or raw_points; paper: the raw points alone, no normals or distances")
-    point_surface: str = param("poisson", choices=("poisson", "points"),
-                               doc="on a point cloud (oriented_points, raw_points): poisson: a screened Poisson surface of the "
-                                   "oriented points gives the sign, the distances and the medial rays (the sparse bunny's "
-                                   "covering: genus 301 from the points alone); points: the points' winding number and distances")
-    zero_level: str = param("input", choices=("input", "proxy"),
-                            doc="with a Poisson surface: the zero level set passes through the input points (input) or "
-                                "through samples of the Poisson surface (proxy: smooths a noisy cloud's noise away, "
-                                "loses the exactness of a clean sparse cloud's points)")
+    supervision: str = param(
+        "auto",
+        choices=("auto", "mesh", "oriented_points", "raw_points", "paper"),
+        doc="what the field learns from: auto picks mesh (an undegraded mesh input), oriented_points "
+        "(points with normals) or raw_points; paper: the raw points alone, no normals or distances",
+    )
+    point_surface: str = param(
+        "poisson",
+        choices=("poisson", "points"),
+        doc="on a point cloud (oriented_points, raw_points): poisson: a screened Poisson surface of the "
+        "oriented points gives the sign, the distances and the medial rays (the sparse bunny's "
+        "covering: genus 301 from the points alone); points: the points' winding number and distances",
+    )
+    zero_level: str = param(
+        "input",
+        choices=("input", "proxy"),
+        doc="with a Poisson surface: the zero level set passes through the input points (input) or "
+        "through samples of the Poisson surface (proxy: smooths a noisy cloud's noise away, "
+        "loses the exactness of a clean sparse cloud's points)",
+    )
     poisson_depth: int = param(8, ge=5, le=11, doc="octree depth of the Poisson surface (8: cells of 1/256 of the box)")
-    poisson_point_weight: float = param(4.0, ge=0, doc="screening weight: higher follows the points more closely, noise too")
-    ridge_every: int = param(200, ge=0, doc="every this many steps (from ridge_start on), the mf targets on the medial rays "
-                             "become the learned |sdf| at the rays' medial points, so q is 0 there although the network "
-                             "rounds the |sdf| ridge (0: the rays' radii from the data)")
+    poisson_point_weight: float = param(
+        4.0, ge=0, doc="screening weight: higher follows the points more closely, noise too"
+    )
+    ridge_every: int = param(
+        200,
+        ge=0,
+        doc="every this many steps (from ridge_start on), the mf targets on the medial rays "
+        "become the learned |sdf| at the rays' medial points, so q is 0 there although the network "
+        "rounds the |sdf| ridge (0: the rays' radii from the data)",
+    )
     ridge_start: float = param(0.3, ge=0, le=1, doc="share of the steps before the first ridge update")
-    volume_samples: int = param(1_000_000, ge=1000, doc="volume samples with their targets, drawn once; each step picks volume_batch of them")
+    volume_samples: int = param(
+        1_000_000, ge=1000, doc="volume samples with their targets, drawn once; each step picks volume_batch of them"
+    )
     steps: int = param(2000, ge=1)
     surface_batch: int = param(4096, ge=16, doc="input points per step (paper: 4096)")
     volume_batch: int = param(4096, ge=16, doc="volume samples per step")
     uniform_fraction: float = param(0.25, ge=0, le=1, doc="share of volume samples uniform in the box")
-    ray_fraction: float = param(0.4, ge=0, le=1, doc="share of volume samples on the medial rays (inward from the surface "
-                                "samples to their medial balls, half by the axis); the rest near the points. Not for the paper route")
+    ray_fraction: float = param(
+        0.4,
+        ge=0,
+        le=1,
+        doc="share of volume samples on the medial rays (inward from the surface "
+        "samples to their medial balls, half by the axis); the rest near the points. Not for the paper route",
+    )
     lr: float = param(1e-3, gt=0)
     lr_final: float = param(1e-4, gt=0, doc="cosine decay down to this")
-    losses: dict[str, Any] = param(factory=_default_losses, doc="loss name -> {weight, ...} for the supervised routes "
-                                   "(mesh, oriented_points, raw_points); weight 0 disables")
+    losses: dict[str, Any] = param(
+        factory=_default_losses,
+        doc="loss name -> {weight, ...} for the supervised routes "
+        "(mesh, oriented_points, raw_points); weight 0 disables",
+    )
     paper_losses: dict[str, Any] = param(factory=_paper_losses, doc="the same for the paper route (raw points alone)")
-    checkpoint_every: int = param(250, ge=1, doc="steps between checkpoints (resume, and the last good state on divergence)")
+    checkpoint_every: int = param(
+        250, ge=1, doc="steps between checkpoints (resume, and the last good state on divergence)"
+    )
     resume: bool = param(True, doc="continue from the last checkpoint of an interrupted run with the same key")
     logger: str = param("csv", choices=("csv", "tensorboard", "wandb"), doc="wandb runs offline without WANDB_API_KEY")
     accelerator: str = param("auto", doc="Lightning accelerator: auto uses a GPU when there is one")
@@ -93,8 +126,10 @@ class TrainConfig:
                 if name not in LOSSES:
                     problems.append((f"{section}.{name}", LOSSES.why_missing(name)))
                 else:
-                    problems += [(p.key, p.message) for p in
-                                 schema.check_section(LOSSES.get(name).config, params or {}, f"{section}.{name}")]
+                    problems += [
+                        (p.key, p.message)
+                        for p in schema.check_section(LOSSES.get(name).config, params or {}, f"{section}.{name}")
+                    ]
         return problems
 
 
@@ -127,24 +162,50 @@ class Train(Stage):
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         torch.manual_seed(ctx.seed)  # the initial weights (and Fourier frequencies) too: the same seed, the same field
         sampler = StepSampler(sup, cfg.surface_batch, cfg.volume_batch, ctx.seed)
-        module = FieldModule(build_net(cfg.backbone, params), build_terms(route_losses(cfg, sup.route), cfg.medial_field),
-                             sampler, steps=cfg.steps, lr=cfg.lr, lr_final=cfg.lr_final, medial_field=cfg.medial_field,
-                             ridge_every=cfg.ridge_every, ridge_start=cfg.ridge_start)
+        module = FieldModule(
+            build_net(cfg.backbone, params),
+            build_terms(route_losses(cfg, sup.route), cfg.medial_field),
+            sampler,
+            steps=cfg.steps,
+            lr=cfg.lr,
+            lr_final=cfg.lr_final,
+            medial_field=cfg.medial_field,
+            ridge_every=cfg.ridge_every,
+            ridge_start=cfg.ridge_start,
+        )
         device = fit(ctx, cfg, module, cfg.steps)
         axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and cfg.medial_field else None
-        field = Field(module.net.cpu(), ctx.load("normalization"),
-                      {"backbone": cfg.backbone, "backbone_params": params}, device="cpu")
+        field = Field(
+            module.net.cpu(),
+            ctx.load("normalization"),
+            {"backbone": cfg.backbone, "backbone_params": params},
+            device="cpu",
+        )
         field.save(ctx.path("field"))
         final = module.history[-1] if module.history else {}
-        ctx.save("training", {"steps": cfg.steps, "final_losses": final, "history": module.history,
-                              "device": device, "torch_threads": torch.get_num_threads(), "supervision": sup.stats,
-                              "axis_q": axis})
+        ctx.save(
+            "training",
+            {
+                "steps": cfg.steps,
+                "final_losses": final,
+                "history": module.history,
+                "device": device,
+                "torch_threads": torch.get_num_threads(),
+                "supervision": sup.stats,
+                "axis_q": axis,
+            },
+        )
         if cfg.picture:
             from qmdf.viz import plot_field_slices, plot_losses
 
             plot_field_slices(ctx.stage_dir / "slices.png", field)
             plot_losses(ctx.stage_dir / "losses.png", module.history)
-        ctx.log.info("trained %d steps on %d points; final total loss %.4g", cfg.steps, len(points), final.get("loss/total", float("nan")))
+        ctx.log.info(
+            "trained %d steps on %d points; final total loss %.4g",
+            cfg.steps,
+            len(points),
+            final.get("loss/total", float("nan")),
+        )
 
 
 def axis_q_stats(sampler, net) -> dict:
@@ -178,21 +239,42 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
         surface = ctx.load("surface")
         mesh = (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64))
     t0 = time.perf_counter()
-    sup = build_supervision(route, points.points, points.normals, np.random.default_rng([ctx.seed, 17]), mesh,
-                            cfg.volume_samples, cfg.uniform_fraction, cfg.ray_fraction, proxy=cfg.point_surface,
-                            poisson_depth=cfg.poisson_depth, poisson_point_weight=cfg.poisson_point_weight,
-                            zero_level=cfg.zero_level)
+    sup = build_supervision(
+        route,
+        points.points,
+        points.normals,
+        np.random.default_rng([ctx.seed, 17]),
+        mesh,
+        cfg.volume_samples,
+        cfg.uniform_fraction,
+        cfg.ray_fraction,
+        proxy=cfg.point_surface,
+        poisson_depth=cfg.poisson_depth,
+        poisson_point_weight=cfg.poisson_point_weight,
+        zero_level=cfg.zero_level,
+    )
     sup.stats.update(why=why, seconds=round(time.perf_counter() - t0, 2))
     ctx.notes["supervision"] = {"route": route, "why": why}
-    ctx.log.info("supervision: %s (%s); %d volume samples, %d with a distance target, %d on medial rays (%.1f s)",
-                 route, why, sup.stats["volume_samples"], sup.stats["sdf_targets"], sup.stats["mf_targets"],
-                 sup.stats["seconds"])
+    ctx.log.info(
+        "supervision: %s (%s); %d volume samples, %d with a distance target, %d on medial rays (%.1f s)",
+        route,
+        why,
+        sup.stats["volume_samples"],
+        sup.stats["sdf_targets"],
+        sup.stats["mf_targets"],
+        sup.stats["seconds"],
+    )
     if "orientation" in sup.stats:
         ctx.log.info("normals: %s", sup.stats["orientation"])
     if "proxy" in sup.stats:
         ctx.notes["supervision"]["proxy"] = sup.stats["proxy"]
-        ctx.log.info("targets from: %s%s", sup.stats["proxy"], "" if "proxy_surface" not in sup.stats else
-                     " surface of the oriented points (%d vertices)" % sup.stats["proxy_surface"]["vertices"])
+        ctx.log.info(
+            "targets from: %s%s",
+            sup.stats["proxy"],
+            ""
+            if "proxy_surface" not in sup.stats
+            else " surface of the oriented points (%d vertices)" % sup.stats["proxy_surface"]["vertices"],
+        )
     return sup
 
 
@@ -202,9 +284,19 @@ def fit(ctx: StageContext, cfg: TrainConfig, module, steps: int) -> str:
     from qmdf.fields.fitting import fit as fit_module
 
     show = cfg.progress_bar == "on" or (cfg.progress_bar == "auto" and sys.stderr.isatty())
-    return fit_module(module, steps, work_dir=ctx.work_dir, seed=ctx.seed, log=ctx.log, logger=_logger(cfg, ctx),
-                      checkpoint_every=cfg.checkpoint_every, resume=cfg.resume, accelerator=cfg.accelerator,
-                      show_progress=show, on_end=_wandb_finish if cfg.logger == "wandb" else None)
+    return fit_module(
+        module,
+        steps,
+        work_dir=ctx.work_dir,
+        seed=ctx.seed,
+        log=ctx.log,
+        logger=_logger(cfg, ctx),
+        checkpoint_every=cfg.checkpoint_every,
+        resume=cfg.resume,
+        accelerator=cfg.accelerator,
+        show_progress=show,
+        on_end=_wandb_finish if cfg.logger == "wandb" else None,
+    )
 
 
 def _wandb_finish() -> None:
