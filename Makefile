@@ -19,6 +19,7 @@ test: setup
 
 lint: setup
 	$(PY) -m ruff check qmdf tests
+	$(PY) -m ruff format --check qmdf tests
 
 plugins: setup
 	$(PY) -m qmdf.plugins

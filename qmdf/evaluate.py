@@ -112,8 +112,10 @@ def format_report(name: str, m: dict) -> str:
         f"  CD  {m['chamfer']:.3e}   ({m['chamfer'] * 1e3:.3f} x 1e-3)",
         f"  HD  {m['hausdorff']:.3e}   ({m['hausdorff'] * 1e3:.3f} x 1e-3)",
         f"  chi {m['chi']}   (V - E + F of the medial mesh)",
-        f"  boundary smoothness C_avg {m['boundary_smoothness'] if m['boundary_smoothness'] is not None else 'n/a (no boundary)'}",
-        f"  V {m['vertices']}  F {m['faces']}  radius min/mean/max {m['radius']['min']:.4g}/{m['radius']['mean']:.4g}/{m['radius']['max']:.4g}",
+        "  boundary smoothness C_avg "
+        f"{m['boundary_smoothness'] if m['boundary_smoothness'] is not None else 'n/a (no boundary)'}",
+        f"  V {m['vertices']}  F {m['faces']}  radius min/mean/max "
+        f"{m['radius']['min']:.4g}/{m['radius']['mean']:.4g}/{m['radius']['max']:.4g}",
         f"  definition: {m['definition']}",
     ]
     return "\n".join(lines)

@@ -89,7 +89,8 @@ def check_wiring(steps: list[Step]) -> None:
                 )
             elif made[name][0] is not kind:
                 problems.append(
-                    f"stage '{step.name}' reads '{name}' as {kind.name}, but '{made[name][1]}' makes it as {made[name][0].name}"
+                    f"stage '{step.name}' reads '{name}' as {kind.name}, "
+                    f"but '{made[name][1]}' makes it as {made[name][0].name}"
                 )
         for name, kind in {**st.outputs, **st.optional_outputs}.items():
             made[name] = (kind, step.name)

@@ -35,3 +35,34 @@ class Heartbeat:
         left = duration(rate * max(0, self.total - done))
         self.log.info("%s: %d of %d%s, %s left", self.what, done, self.total, f", {detail}" if detail else "", left)
         self.lines += 1
+
+
+class Bar:
+    """The same ``beat(done, detail)`` as a progress bar with the time left (tqdm), for a terminal."""
+
+    def __init__(self, what: str, total: int, stream=None, min_interval: float = 0.1):
+        import sys
+
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            total=total, desc=what, file=stream or sys.stderr, dynamic_ncols=True, leave=False, mininterval=min_interval
+        )
+        self.done = 0
+
+    def beat(self, done: int, detail: str = "") -> None:
+        if detail:
+            self.bar.set_postfix_str(detail, refresh=False)
+        self.bar.update(done - self.done)
+        self.done = done
+        if done >= self.bar.total:
+            self.bar.close()
+
+
+def progress(log, what: str, total: int, bar: bool | None = None):
+    """A ``Bar`` on a terminal (stderr a TTY, or ``bar=True``), else a ``Heartbeat`` in the log."""
+    import sys
+
+    if bar if bar is not None else sys.stderr.isatty():
+        return Bar(what, total)
+    return Heartbeat(log, what, total)

@@ -147,7 +147,7 @@ def figure(run):
         scene={"aspectmode": "data"},
         height=700,
         margin={"l": 0, "r": 0, "t": 30, "b": 0},
-        legend={"itemclick": "toggle"},
+        legend={"itemclick": "toggle", "x": 0.0, "y": 1.0, "xanchor": "left", "yanchor": "top"},
         title="click the legend to show or hide each layer",
     )
     return fig
@@ -214,7 +214,8 @@ def write_report(run_dir: Path | str) -> Path:
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>qmdf run {html.escape(run_dir.name)}</title>"
         f"<style>{STYLE}</style></head><body>",
         f"<h1>qmdf run {html.escape(str(run_dir))}</h1>",
-        f"<p>status: <b>{html.escape(str(m.get('status')))}</b>{' (' + html.escape(str(m.get('error'))) + ')' if m.get('error') else ''}</p>",
+        f"<p>status: <b>{html.escape(str(m.get('status')))}</b>"
+        f"{' (' + html.escape(str(m.get('error'))) + ')' if m.get('error') else ''}</p>",
     ]
     parts.append(figure(run).to_html(full_html=False, include_plotlyjs=True, div_id="mat-view"))
     config_path = run_dir / "config.yaml"

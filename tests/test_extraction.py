@@ -299,3 +299,13 @@ def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(comp
     assert res.load("sheet_stats")["compact"] is False and len(res.load("sheet").faces) == 0
     assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
     assert "the single sheet is not compact" in caplog.text
+
+
+def test_the_eps_floor_is_the_axis_q_noise_plus_a_margin_of_grid_cells():
+    from qmdf.medial.covering import eps_floor
+
+    cell = 1.1 / 255
+    assert eps_floor({}, 256, 0.55) is None
+    assert eps_floor({"p99": 0.002, "p999": 0.004}, 256, 0.55) == pytest.approx(0.002 + 2 * cell)
+    # a finer grid needs less margin
+    assert eps_floor({"p99": 0.002}, 512, 0.55) < eps_floor({"p99": 0.002}, 256, 0.55)

@@ -27,3 +27,18 @@ def test_heartbeat_throttles_and_estimates_the_time_left():
 
 def test_duration_reads_as_minutes_and_seconds():
     assert duration(59.4) == "59 s" and duration(61) == "1 min 01 s" and duration(3600) == "60 min 00 s"
+
+
+def test_a_terminal_gets_a_bar_with_the_time_left_and_a_log_gets_the_heartbeat():
+    import io
+    import logging
+
+    from qmdf.progress import Bar, Heartbeat, progress
+
+    assert isinstance(progress(logging.getLogger("t"), "contract: iteration", 10, bar=False), Heartbeat)
+    stream = io.StringIO()
+    bar = Bar("contract: iteration", 100, stream=stream, min_interval=0)
+    for done in range(0, 101, 25):
+        bar.beat(done, "q 1e-3")
+    text = stream.getvalue()
+    assert "contract: iteration" in text and "75/100" in text and "q 1e-3" in text and "<00:00" in text  # ETA

@@ -55,10 +55,15 @@ def test_the_report_cli_rewrites_it_and_refuses_a_non_run(report_run, tmp_path):
 def test_the_3d_view_renders_in_a_headless_browser(report_run, tmp_path):
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright (and its Chromium) not installed")
     with playwright.sync_playwright() as p:
+        import shutil
+
         try:
             browser = p.chromium.launch()
-        except Exception as exc:  # the package without its browser download
-            pytest.skip(f"no Chromium for playwright: {exc}")
+        except Exception as exc:  # the package without its browser download: the system's Chromium, if any
+            system = shutil.which("chromium") or shutil.which("chromium-browser")
+            if system is None:
+                pytest.skip(f"no Chromium for playwright: {exc}")
+            browser = p.chromium.launch(executable_path=system)
         page = browser.new_page()
         page.goto((report_run / "report.html").as_uri())
         page.wait_for_selector("#mat-view canvas", timeout=30_000)
@@ -71,3 +76,35 @@ def test_the_3d_view_renders_in_a_headless_browser(report_run, tmp_path):
 
     pixels = np.asarray(Image.open(BytesIO(shot)).convert("L"), float)
     assert pixels.std() > 5  # not blank
+
+
+def test_the_viewer_serves_every_layer_of_a_run_and_toggles_them(report_run, tmp_path):
+    viser = pytest.importorskip("viser", reason="the viewer's extra (qmdf[view]) not installed")
+    import socket
+
+    from qmdf.pipeline import RunResult
+    from qmdf.view import build_scene, main
+
+    with socket.socket() as s:  # a free port
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+    try:
+        scene = build_scene(server, RunResult.open(report_run))
+        for layer in (
+            "MAT (colour: radius)",
+            "input points",
+            "covering (before contraction)",
+            "covering after contraction",
+            "reconstruction",
+        ):
+            assert layer in scene.layers and layer in scene.controls
+        assert any(name.startswith("medial balls") for name in scene.layers)
+        # the MAT shows at start, the rest one click away; a checkbox sets its layer's visibility
+        assert scene.layers["MAT (colour: radius)"].visible and not scene.layers["reconstruction"].visible
+        box = scene.controls["reconstruction"]
+        box.value = True
+        assert scene.layers["reconstruction"].visible
+    finally:
+        server.stop()
+    assert main([str(tmp_path)]) == 2  # not a run: one line, no traceback

@@ -152,7 +152,8 @@ def main(argv: list[str]) -> int:
     shapes = args.shapes.split(",") + (["teacup"] if args.learned and args.shapes == ",".join(SHAPES) else [])
     rows = [run_shape(s, out, args.overrides, args.tets, args.learned) for s in shapes]
     head = (
-        f"{'shape':<10}{'cover V':>9}{'(before)':>10}{'cover s':>9}{'tets s':>8}{'contract s':>11}{'export s':>9}{'stages s':>9}"
+        f"{'shape':<10}{'cover V':>9}{'(before)':>10}{'cover s':>9}{'tets s':>8}"
+        f"{'contract s':>11}{'export s':>9}{'stages s':>9}"
         f"{'vol ratio':>11}{'axis mean':>11}{'axis p95':>10}{'r err':>9}{'chi':>5}{'exp':>5}{'CD':>10}{'HD':>10}"
     )
     print(head)
@@ -165,7 +166,8 @@ def main(argv: list[str]) -> int:
         print(
             f"{r['shape']:<10}{r['cover_vertices']:>9}{r['cover_faces_before_decimation']:>10}{r['cover_s']:>9.1f}{tet:>8}"
             f"{r['contract_s']:>11.1f}{r['export_s']:>9.1f}{r['stages_s']:>9.1f}{r['volume_ratio']:>11.2e}"
-            f"{fmt(r.get('axis_mean'), '11.2e'):>11}{fmt(r.get('axis_p95'), '10.2e'):>10}{fmt(r.get('radius_err'), '9.1e'):>9}{r['chi']:>5}{r['expected_chi']:>5}"
+            f"{fmt(r.get('axis_mean'), '11.2e'):>11}{fmt(r.get('axis_p95'), '10.2e'):>10}"
+            f"{fmt(r.get('radius_err'), '9.1e'):>9}{r['chi']:>5}{r['expected_chi']:>5}"
             f"{r['cd']:>10.2e}{r['hd']:>10.2e}"
         )
     print()
@@ -180,8 +182,10 @@ def main(argv: list[str]) -> int:
             continue
         print(
             f"{r['shape']:<10}{r['sheet_s']:>8.1f}{r['sheet_vertices']:>7}{r['sheet_faces']:>7}{r['sheet_lone_edges']:>8}"
-            f"{r['sheet_seams']:>7}{fmt(r.get('sheet_axis_mean'), '11.2e'):>11}{fmt(r.get('sheet_axis_p95'), '10.2e'):>10}"
-            f"{r['chi']:>5}{r['expected_chi']:>5}{r['cd']:>10.2e}{r['membrane_cd']:>10.2e}{r['cd'] / r['membrane_cd']:>7.2f}"
+            f"{r['sheet_seams']:>7}{fmt(r.get('sheet_axis_mean'), '11.2e'):>11}"
+            f"{fmt(r.get('sheet_axis_p95'), '10.2e'):>10}"
+            f"{r['chi']:>5}{r['expected_chi']:>5}{r['cd']:>10.2e}{r['membrane_cd']:>10.2e}"
+            f"{r['cd'] / r['membrane_cd']:>7.2f}"
             f"{r['hd']:>10.2e}{r['membrane_hd']:>10.2e}"
         )
     print(

@@ -228,7 +228,8 @@ def main(argv: list[str]) -> int:
             f"{r['shape']:<16}{r['sharp_within_0.01_before']:>8.2f}/{r['sharp_within_0.01_after']:<7.2f}"
             f"{r['sharp_reached_0.01_before']:>7.2f}/{r['sharp_reached_0.01_after']:<6.2f}"
             f"{r['sharp_mean_before']:>10.2e}/{r['sharp_mean_after']:<9.2e}{r['cd_before']:>10.2e}/{r['cd_after']:<9.2e}"
-            f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
+            f"{r['hd_before']:>10.2e}/{r['hd_after']:<9.2e}"
+            f"{fmt(r['smoothness_before'], '6.3f')}/{fmt(r['smoothness_after'], '<7.3f')}"
             f"{r['feature_s']:>8.1f}{fmt(r.get('wall_s', r.get('recontract_s')), '.1f'):>8}"
         )
     print(

@@ -167,7 +167,8 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 def print_table(rows: list[dict]) -> None:
     head = (
         f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}"
-        f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}{'wall s':>8}{'peak MB':>9}"
+        f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}"
+        f"{'wall s':>8}{'peak MB':>9}"
         "  stages (s) / note"
     )
     print(head)
@@ -185,7 +186,8 @@ def print_table(rows: list[dict]) -> None:
             f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}"
             f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}"
             f"{_fmt(r.get('membrane_cd'), 1e3) + '/' + _fmt(r.get('membrane_hd'), 1e3):>13}{paper:>18}"
-            f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  {stages}{' | ' + r['note'] if r.get('note') else ''}"
+            f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  "
+            f"{stages}{' | ' + r['note'] if r.get('note') else ''}"
         )
     print(
         "\nCD / HD: exact point-to-surface distances, (mean R->G + mean G->R)/2 and the larger max, unit box "

@@ -25,3 +25,22 @@ def field_quality(
         "inside_share": float(inside.mean()),
         "samples": samples,
     }
+
+
+def axis_q_stats(sampler, net) -> dict | None:
+    """Percentiles of the lowest q along the medial rays (0 where the learned valley of q is on the axis): the
+    field's noise floor on its axis, which ``cover`` takes for its eps (cover.eps_from_field). The covering has a
+    hole wherever the valley stays above eps, so the upper tail counts: p999 and the maximum too."""
+    q = sampler.axis_q(net).numpy()
+    q = q[np.isfinite(q)]
+    if not len(q):
+        return None
+    p50, p90, p99, p999 = np.percentile(q, [50, 90, 99, 99.9])
+    return {
+        "p50": float(p50),
+        "p90": float(p90),
+        "p99": float(p99),
+        "p999": float(p999),
+        "max": float(q.max()),
+        "rays": int(len(q)),
+    }

@@ -27,14 +27,22 @@ def mesh_winding_number(vertices: np.ndarray, faces: np.ndarray, queries: np.nda
 
 def mesh_distance(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unsigned distance from each query to the mesh and the closest point on it."""
+    dist, _, closest = mesh_closest(vertices, faces, queries)
+    return dist, closest
+
+
+def mesh_closest(
+    vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unsigned distance from each query to the mesh, the face it is closest to and the closest point."""
     import igl
 
     if len(queries) == 0:
-        return np.zeros(0), np.zeros((0, 3))
-    sq, _, closest = igl.point_mesh_squared_distance(
+        return np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3))
+    sq, face, closest = igl.point_mesh_squared_distance(
         _f64(queries), _f64(vertices), np.ascontiguousarray(faces, np.int64)
     )
-    return np.sqrt(np.maximum(sq, 0.0)), closest
+    return np.sqrt(np.maximum(sq, 0.0)), np.asarray(face, np.int64), closest
 
 
 def mesh_signed_distance(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> np.ndarray:

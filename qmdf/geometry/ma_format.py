@@ -86,7 +86,8 @@ def write_ply_with_radius(path: Path, mat: MedialMesh) -> None:
     lone = mat.lone_edges()
     header = (
         "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {len(mat.vertices)}\nproperty float x\nproperty float y\nproperty float z\nproperty float radius\n"
+        f"element vertex {len(mat.vertices)}\n"
+        "property float x\nproperty float y\nproperty float z\nproperty float radius\n"
         f"element face {len(mat.faces)}\nproperty list uchar int vertex_indices\n"
         f"element edge {len(lone)}\nproperty int vertex1\nproperty int vertex2\nend_header\n"
     ).encode()

@@ -161,11 +161,12 @@ def orient_by_winding(
     points: np.ndarray, normals: np.ndarray, step: np.ndarray | None = None, rounds: int = 4
 ) -> tuple[np.ndarray, dict]:
     """Normals made consistent with the cloud's winding number. First the whole cloud turns when most normals
-    point in (the winding number is then negative inside, and w behind - w ahead still looks right). Then, for a few rounds, every normal whose side ahead reads inside
-    (w > 1/2) turns: a patch oriented the wrong way together (a cup's inner wall after the tree crossed the thin
-    wall) is self-consistent by the votes behind - ahead, but it makes the region behind it count twice and the
-    region ahead of it count once, so "ahead is outside" catches it. Each round recomputes the winding number
-    from the previous round's normals. Returns the normals and what was flipped."""
+    point in (the winding number is then negative inside, and w behind - w ahead still looks right). Then, for a
+    few rounds, every normal whose side ahead reads inside (w > 1/2) turns: a patch oriented the wrong way
+    together (a cup's inner wall after the tree crossed the thin wall) is self-consistent by the votes behind -
+    ahead, but it makes the region behind it count twice and the region ahead of it count once, so "ahead is
+    outside" catches it. Each round recomputes the winding number from the previous round's normals. Returns the
+    normals and what was flipped."""
     from qmdf.geometry.inside import point_areas
 
     if step is None:

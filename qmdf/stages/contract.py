@@ -87,7 +87,7 @@ class Contract(Stage):
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.tets import boundary_faces
         from qmdf.medial.contraction import contract, surface_mesh
-        from qmdf.progress import Heartbeat
+        from qmdf.progress import progress
 
         cfg: ContractConfig = ctx.cfg
         field = ctx.load("field")
@@ -101,7 +101,7 @@ class Contract(Stage):
             mesh = ctx.load("covering")
             v, t, faces = np.asarray(mesh.vertices), None, np.asarray(mesh.faces)
         features = ctx.load("feature_points").points if ctx.has("feature_points") else None
-        heart = Heartbeat(ctx.log, "contract: iteration", cfg.iterations)
+        heart = progress(ctx.log, "contract: iteration", cfg.iterations)
         x, history, vol0, evaluations = contract(
             field,
             v,

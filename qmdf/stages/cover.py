@@ -17,8 +17,9 @@ class CoverConfig:
     eps_from_field: bool = param(
         True,
         doc="raise eps to the field's noise floor on its axis (the 99th percentile of q's "
-        "lowest value along train's medial rays), so the covering has no holes where q's valley "
-        "stays above eps; false: eps as given",
+        "lowest value along train's medial rays) plus 2 grid cells, so the covering has no "
+        "holes where q's valley stays above eps or the slab {q < eps} around a sheet falls "
+        "between the grid's nodes; false: eps as given",
     )
     resolution: int = param(256, ge=16, le=1024, doc="grid nodes along the unit box (paper: 256)")
     coarse_step: int = param(8, ge=1, doc="first-pass spacing in grid cells; refined by halves near the covering")
@@ -30,7 +31,8 @@ class CoverConfig:
     max_faces: int = param(
         30000,
         ge=0,
-        doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction and export cost scale with it (box: 60k faces -> 84 s, 30k -> 54 s, same accuracy; bench extraction)",
+        doc="decimate larger coverings to this many faces (topology kept; 0: never); contraction and export cost "
+        "scale with it (box: 60k faces -> 84 s, 30k -> 54 s, same accuracy; bench extraction)",
     )
 
 
@@ -42,25 +44,27 @@ class Cover(Stage):
     inputs = {"field": FIELD}
     optional_inputs = {"training": JSON}
     outputs = {"covering": MESH, "covering_stats": JSON, "covering_grid": GRID}
-    version = "2"  # 2: the grid nodes inside the covering (for sheet)
+    version = "5"  # 2: the grid nodes inside the covering (for sheet); 5: eps floor: p99 + 2 cells
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
 
         cfg: CoverConfig = ctx.cfg
-        floor = (ctx.load("training").get("axis_q") or {}).get("p99") if ctx.has("training") else None
+        from qmdf.medial.covering import build_covering, eps_floor
+
+        axis_q = (ctx.load("training").get("axis_q") or {}) if ctx.has("training") else {}
+        floor = eps_floor(axis_q, cfg.resolution, cfg.extent)
         if cfg.eps_from_field and floor is not None and floor > cfg.eps:
             ctx.log.info(
-                "cover.eps %.4g raised to %.4g, the field's noise floor on its axis (cover.eps_from_field)",
+                "cover.eps %.4g raised to %.4g, the field's noise floor on its axis plus 2 grid cells "
+                "(cover.eps_from_field)",
                 cfg.eps,
                 floor,
             )
             cfg = dataclasses.replace(cfg, eps=float(floor))
-        from qmdf.medial.covering import build_covering
-
         params = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "eps_from_field"}
         mesh, stats, grid = build_covering(ctx.load("field"), log=ctx.log, **params)
-        stats["eps_requested"], stats["axis_q_p99"] = ctx.cfg.eps, floor
+        stats["eps_requested"], stats["eps_floor"] = ctx.cfg.eps, floor
         if not stats["watertight"]:
             ctx.log.warning("the covering is not watertight; tetrahedralize will refuse it")
         ctx.save("covering", mesh)

@@ -57,7 +57,8 @@ class FeatureRetrain(Stage):
         from qmdf.fields.module import FieldModule, build_net, build_terms
         from qmdf.geometry.bisectors import bisector_samples
         from qmdf.fields.data import StepSampler
-        from qmdf.stages.train import axis_q_stats, fit, route_losses, supervise
+        from qmdf.fields.quality import axis_q_stats
+        from qmdf.stages.train import fit, route_losses, supervise
 
         cfg: FeatureRetrainConfig = ctx.cfg
         field = ctx.load("field")

@@ -78,7 +78,8 @@ class Sample(Stage):
     config_deps = ("seed", "input")
     outputs = {"points": POINTS, "normalization": NORMALIZATION, "input_info": JSON}
     optional_outputs = {"surface": MESH, "clean_points": POINTS}  # clean_points: the points before degradations
-    version = "4"  # 2: a mesh's sample normals point outward (or are dropped); 3: input_info; 4: clean_points only when degraded
+    # 2: a mesh's sample normals point outward (or are dropped); 3: input_info; 4: clean_points only when degraded
+    version = "4"
 
     def fingerprint(self, ctx: StageContext) -> str:
         inp = ctx.settings.input
@@ -113,7 +114,8 @@ class Sample(Stage):
             ctx.log.info("degradation %s: %d -> %d points", name, before, len(points))
         if len(points) < ctx.settings.input.min_points:
             raise InputError(
-                f"the degradations left {len(points)} points, fewer than input.min_points={ctx.settings.input.min_points}"
+                f"the degradations left {len(points)} points, "
+                f"fewer than input.min_points={ctx.settings.input.min_points}"
             )
         ctx.save("points", points)
         # what train's supervision may use: a degraded mesh stands for a scan, so only its points count

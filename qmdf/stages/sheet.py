@@ -67,7 +67,8 @@ class SheetConfig:
     target_vertices: int = param(
         3000,
         ge=0,
-        doc="simplify to this many vertices (0: no simplification); the teacup's CD over the membrane's: 1.18x at 3000, 1.25x at 2000, 0.96x unsimplified (136k vertices)",
+        doc="simplify to this many vertices (0: no simplification); the teacup's CD over the membrane's: 1.18x at "
+        "3000, 1.25x at 2000, 0.96x unsimplified (136k vertices)",
     )
     boundary_weight: float = param(
         1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's free boundary in place)"

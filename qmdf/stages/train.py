@@ -141,7 +141,9 @@ class Train(Stage):
     inputs = {"points": POINTS, "normalization": NORMALIZATION}
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
-    version = "4"  # 2: the initial weights are seeded; 3: supervision routes, batches drawn by global step; 4: Poisson proxy surface of point clouds
+    # 2: seeded weights; 3: supervision routes; 4: Poisson proxy of clouds; 5: mesh rays along smooth normals;
+    # 6: axis_q's p999 and max
+    version = "6"
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
@@ -154,6 +156,7 @@ class Train(Stage):
 
         from qmdf.fields.data import StepSampler
         from qmdf.fields.field import Field
+        from qmdf.fields.quality import axis_q_stats
         from qmdf.fields.module import FieldModule, build_net, build_terms
 
         cfg: TrainConfig = ctx.cfg
@@ -206,17 +209,6 @@ class Train(Stage):
             len(points),
             final.get("loss/total", float("nan")),
         )
-
-
-def axis_q_stats(sampler, net) -> dict:
-    """Percentiles of the lowest q along the medial rays (0 where the learned valley of q is on the axis): the
-    field's noise floor on its axis, which ``cover`` can take as its eps (cover.eps_from_field)."""
-    q = sampler.axis_q(net).numpy()
-    q = q[np.isfinite(q)]
-    if not len(q):
-        return None
-    p50, p90, p99 = np.percentile(q, [50, 90, 99])
-    return {"p50": float(p50), "p90": float(p90), "p99": float(p99), "rays": int(len(q))}
 
 
 def route_losses(cfg: TrainConfig, route: str) -> dict:
