@@ -151,3 +151,13 @@ def test_simplify_a_curved_sheet_keeps_its_envelope_close(target):
     union = EnvelopeUnion.from_mat(MedialMesh(v, r, np.zeros((0, 2)), f).with_face_edges())
     tops = res.vertices + res.radii[:, None] * np.array([0, 0, 1.0])
     assert np.abs(union.sdf(tops)).max() < 0.1 * r.max()
+
+
+def test_the_collapse_takes_every_kth_node_within_the_node_budget():
+    from qmdf.medial.sheet import node_stride
+
+    inside = np.zeros((40, 40, 40), bool)
+    inside[:20, :20, :20] = True  # 8,000 nodes inside; every 2nd: 1,000; every 3rd: 343
+    assert node_stride(inside, 8000) == 1
+    assert node_stride(inside, 7999) == 2 and node_stride(inside, 1000) == 2
+    assert node_stride(inside, 999) == 3

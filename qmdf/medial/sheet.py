@@ -32,6 +32,15 @@ class Sheet:
         return euler_medial_mesh(len(self.vertices), self.edges, self.faces)
 
 
+def node_stride(inside: np.ndarray, max_nodes: int) -> int:
+    """The smallest k with at most ``max_nodes`` of every k-th grid node inside (the collapse's cost follows the
+    node count)."""
+    stride = 1
+    while inside[::stride, ::stride, ::stride].sum() > max_nodes:
+        stride += 1
+    return stride
+
+
 def _centre_curves(x: np.ndarray, squares: np.ndarray, membrane_vertices: np.ndarray, reach: float) -> np.ndarray:
     """Vertices of no square (a curve-like axis) moved from the membrane's surface to the middle of it: the
     mean of the membrane's vertices within ``reach``. Around a curve the contracted membrane is a thin tube,
