@@ -66,3 +66,14 @@ def test_every_module_was_read():
     assert {"qmdf.medial.contraction", "qmdf.medial.covering", "qmdf.fields.fitting", "qmdf.stages.contract"} <= set(
         MODULES
     )
+
+
+def test_the_import_graph_command_shows_no_upward_import(tmp_path):
+    from qmdf.plugins.__main__ import import_graph, imports_listing
+
+    assert imports_listing(PACKAGE).splitlines()[-1].endswith(": none")
+    # a library module that reaches a stage is reported
+    (tmp_path / "qmdf" / "geometry").mkdir(parents=True)
+    (tmp_path / "qmdf" / "geometry" / "bad.py").write_text("def f():\n    from qmdf.stages.sample import Sample\n")
+    assert import_graph(tmp_path / "qmdf") == {"geometry": {"stages": 1}}
+    assert imports_listing(tmp_path / "qmdf").splitlines()[-1].endswith("geometry -> stages (1)")
