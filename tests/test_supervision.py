@@ -278,6 +278,12 @@ def test_smooth_normals_of_a_faceted_mesh_and_its_medial_rays():
     r_face = inward_medial_radii(pts, nrm, distance, tol=tol)
     assert np.percentile(np.abs(r - TORUS_r), 90) < 2e-3
     assert np.percentile(np.abs(r_face - TORUS_r), 90) > 10 * np.percentile(np.abs(r - TORUS_r), 90)
+    # the face normals stay as an ablation (train.mesh_rays=face), recorded with the route
+    rng = np.random.default_rng(0)
+    face_sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=5000, mesh_rays="face")
+    smooth_sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=5000)
+    assert face_sup.stats["mesh_rays"] == "face" and smooth_sup.stats["mesh_rays"] == "smooth"
+    assert np.median(face_sup.radii) < TORUS_r - 0.02 < np.median(smooth_sup.radii)
 
 
 def mesh_distance_face(mesh, points):

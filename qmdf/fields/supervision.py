@@ -95,6 +95,7 @@ def build_supervision(
     poisson_point_weight: float = 4.0,
     proxy_rays: int = 50_000,
     zero_level: str = "input",
+    mesh_rays: str = "smooth",
 ) -> Supervision:
     """The training targets of ``route`` (see the module doc). Points are in the unit box."""
     stats: dict = {"route": route}
@@ -102,8 +103,11 @@ def build_supervision(
     if route == "mesh":
         v, f = mesh
         normals = _mesh_outward_normals(points, normals, v, f, stats)
-        ray_normals, tol = _mesh_ray_normals(points, normals, v, f)
-        stats["ray_tolerance"] = tol
+        if mesh_rays == "smooth":
+            ray_normals, tol = _mesh_ray_normals(points, normals, v, f)
+        else:  # along the faces' normals, the test nearly exact (ablation: the version of 2026-11-30)
+            ray_normals, tol = normals, 1e-4
+        stats["mesh_rays"], stats["ray_tolerance"] = mesh_rays, tol
         radii = inward_medial_radii(points, ray_normals, lambda q: mesh_distance(v, f, q)[0], tol=tol, iterations=16)
     elif route in ("oriented_points", "raw_points"):
         if route == "raw_points" or normals is None:
