@@ -16,6 +16,12 @@ import numpy as np
 #: faces per mesh and points per cloud drawn in the 3D view (the page stays a few MB)
 DISPLAY_FACES = 12_000
 DISPLAY_POINTS = 10_000
+#: the run's meshes beside the MAT, shown on demand by the report and the viewer: (artifact, label, RGB, opacity)
+MESH_LAYERS = (
+    ("covering", "covering (before contraction)", (255, 165, 0), 0.3),
+    ("membrane", "covering after contraction", (220, 40, 40), 0.5),
+    ("reconstruction", "reconstruction", (173, 216, 230), 0.35),
+)
 
 
 def _display_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +53,19 @@ def _mesh_trace(go, v, f, name, color, opacity, visible):
         showlegend=True,
         visible=visible,
         flatshading=True,
+    )
+
+
+def _points_trace(go, points, name, size, color):
+    p = _short(points)
+    return go.Scatter3d(
+        x=p[:, 0],
+        y=p[:, 1],
+        z=p[:, 2],
+        mode="markers",
+        name=name,
+        marker={"size": size, "color": color},
+        visible="legendonly",
     )
 
 
@@ -109,39 +128,13 @@ def figure(run):
         p = run.load("points").points
         if len(p) > DISPLAY_POINTS:
             p = p[np.random.default_rng(0).choice(len(p), DISPLAY_POINTS, replace=False)]
-        p = _short(p)
-        traces.append(
-            go.Scatter3d(
-                x=p[:, 0],
-                y=p[:, 1],
-                z=p[:, 2],
-                mode="markers",
-                name="input points",
-                marker={"size": 1.5, "color": "grey"},
-                visible="legendonly",
-            )
-        )
-    for name, label, color, opacity in (
-        ("covering", "covering (before contraction)", "orange", 0.3),
-        ("membrane", "covering after contraction", "red", 0.5),
-        ("reconstruction", "reconstruction", "lightblue", 0.35),
-    ):
+        traces.append(_points_trace(go, p, "input points", 1.5, "grey"))
+    for name, label, rgb, opacity in MESH_LAYERS:
         if name in arts:
             v, f = _display_mesh(run.load(name))
-            traces.append(_mesh_trace(go, v, f, label, color, opacity, "legendonly"))
+            traces.append(_mesh_trace(go, v, f, label, "rgb{}".format(rgb), opacity, "legendonly"))
     if "feature_points" in arts:
-        p = _short(run.load("feature_points").points)
-        traces.append(
-            go.Scatter3d(
-                x=p[:, 0],
-                y=p[:, 1],
-                z=p[:, 2],
-                mode="markers",
-                name="feature points",
-                marker={"size": 3, "color": "magenta"},
-                visible="legendonly",
-            )
-        )
+        traces.append(_points_trace(go, run.load("feature_points").points, "feature points", 3, "magenta"))
     fig = go.Figure(traces)
     fig.update_layout(
         scene={"aspectmode": "data"},

@@ -77,6 +77,7 @@ def build_scene(server, run) -> Scene:
     import trimesh
 
     from qmdf.geometry.metrics import edges_off_polygons
+    from qmdf.report import MESH_LAYERS
 
     scene = Scene()
     arts = run.artifacts
@@ -107,11 +108,7 @@ def build_scene(server, run) -> Scene:
         scene.layers["input points"] = add.add_point_cloud(
             "/points", p, (110, 110, 110), point_size=0.003, visible=False
         )
-    for name, label, color, opacity in (
-        ("covering", "covering (before contraction)", (255, 160, 0), 0.3),
-        ("membrane", "covering after contraction", (220, 40, 40), 0.5),
-        ("reconstruction", "reconstruction", (150, 200, 240), 0.35),
-    ):
+    for name, label, color, opacity in MESH_LAYERS:
         if name in arts:
             mesh = run.load(name)
             scene.layers[label] = add.add_mesh_simple(
