@@ -77,3 +77,71 @@ def qem_refine(field, p: np.ndarray, points: np.ndarray, k: int, reg: float) -> 
     A = np.einsum("nki,nkj->nij", n, n) + reg * np.eye(3)
     b = np.einsum("nki,nkj,nkj->ni", n, n, nb) + reg * p
     return np.linalg.solve(A, b[..., None])[..., 0]
+
+
+def field_feature_points(
+    field,
+    points: np.ndarray,
+    mat=None,
+    *,
+    seeds: str = "both",
+    spacing: float = 0.005,
+    boundary_fold_deg: float = 150.0,
+    max_radius: float = 0.03,
+    offset: float = 0.004,
+    march_steps: int = 60,
+    march_tol: float = 5e-4,
+    qem_k: int = 16,
+    qem_regularization: float = 1e-3,
+    dihedral_deg: float = 30.0,
+    plane_min_points: int = 4,
+    plane_tolerance: float = 0.05,
+    plane_normal_deg: float = 45.0,
+    arc_ratio: float = 0.5,
+    face_normals: bool = True,
+    stats: dict | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Feature points of a point cloud from its learned ``field`` (the ``feature_detect`` stage's doc has the
+    routes): ``seeds`` "membrane" marches from the fold edges of the first MAT ``mat`` (vertices, faces, radii)
+    onto the edges, "points" fits two planes around every input point, "both" does both. Returns the points,
+    thinned to ``spacing``, and with ``face_normals`` the mean of their two planes' normals (else None);
+    ``stats`` receives the counts."""
+    from qmdf.geometry.metrics import fold_edges
+    from qmdf.geometry.sharp_points import fit_edges, thin
+
+    stats = {} if stats is None else stats
+    need_grads = seeds != "membrane" or face_normals
+    grads = field.evaluate(points, grad=True)["sdf_grad"] if need_grads else None
+    found, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
+    if seeds != "points":
+        folds = fold_edges(mat.vertices, mat.faces, boundary_fold_deg)
+        mid = mat.vertices[folds].mean(1)
+        low = (mat.radii[folds].max(1) < max_radius) & (field.evaluate(mid)["mf"] < max_radius)
+        folds = folds[low]
+        start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], spacing)
+        stats["boundary_edges"], stats["membrane_points"] = int(len(folds)), int(len(start))
+        if len(start):
+            marched = march_to_features(field, start, march_steps, march_tol, offset)
+            refined = qem_refine(field, marched, points, qem_k, qem_regularization)
+            found.append(refined)
+            if face_normals:
+                # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point off
+                # any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
+                fit = fit_edges(refined, points, grads, qem_k, plane_tolerance, plane_normal_deg)
+                sharp = fit.sharp(dihedral_deg, plane_min_points, arc_ratio)
+                normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
+    if seeds != "membrane":
+        fit = fit_edges(points, points, grads, qem_k, plane_tolerance, plane_normal_deg)
+        sharp = fit.sharp(dihedral_deg, plane_min_points, arc_ratio)
+        on_edges, seg = sample_segments(*fit.segments(sharp), spacing, return_index=True)
+        found.append(on_edges)
+        normals.append(fit.mean_normal[sharp][seg])
+        stats["point_fits"] = int(sharp.sum())
+    feats = np.vstack(found)
+    keep = thin(feats, spacing)
+    feats = feats[keep]
+    if len(feats):
+        stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
+    if not face_normals or len(feats) == 0:
+        return feats, None
+    return feats, np.vstack(normals)[keep]

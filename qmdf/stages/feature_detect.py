@@ -27,7 +27,7 @@ import numpy as np
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, POINTS
 from qmdf.errors import QmdfError
 from qmdf.schema import param
-from qmdf.medial.features import march_to_features, qem_refine, sample_segments, sharp_mesh_segments
+from qmdf.medial.features import field_feature_points, sample_segments, sharp_mesh_segments
 from qmdf.stage import Stage, StageContext, register_stage
 
 
@@ -126,9 +126,6 @@ class FeatureDetect(Stage):
 
     @staticmethod
     def _from_field(ctx: StageContext, cfg: FeatureDetectConfig, points: np.ndarray, stats: dict):
-        from qmdf.geometry.metrics import fold_edges
-        from qmdf.geometry.sharp_points import fit_edges, thin
-
         need_mat = cfg.field_seeds != "points"
         if not ctx.has("field") or (need_mat and not ctx.has("mat")):
             raise QmdfError(
@@ -139,41 +136,24 @@ class FeatureDetect(Stage):
                     else ": put it after train in pipeline.stages"
                 )
             )
-        field = ctx.load("field")
-        grads = (
-            field.evaluate(points, grad=True)["sdf_grad"] if cfg.field_seeds != "membrane" or cfg.face_normals else None
+        return field_feature_points(
+            ctx.load("field"),
+            points,
+            ctx.load("mat") if need_mat else None,
+            seeds=cfg.field_seeds,
+            spacing=cfg.spacing,
+            boundary_fold_deg=cfg.boundary_fold_deg,
+            max_radius=cfg.max_radius,
+            offset=cfg.offset,
+            march_steps=cfg.march_steps,
+            march_tol=cfg.march_tol,
+            qem_k=cfg.qem_k,
+            qem_regularization=cfg.qem_regularization,
+            dihedral_deg=cfg.dihedral_deg,
+            plane_min_points=cfg.plane_min_points,
+            plane_tolerance=cfg.plane_tolerance,
+            plane_normal_deg=cfg.plane_normal_deg,
+            arc_ratio=cfg.arc_ratio,
+            face_normals=cfg.face_normals,
+            stats=stats,
         )
-        found, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
-        if need_mat:
-            mat = ctx.load("mat")
-            folds = fold_edges(mat.vertices, mat.faces, cfg.boundary_fold_deg)
-            mid = mat.vertices[folds].mean(1)
-            low = (mat.radii[folds].max(1) < cfg.max_radius) & (field.evaluate(mid)["mf"] < cfg.max_radius)
-            folds = folds[low]
-            start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], cfg.spacing)
-            stats["boundary_edges"], stats["membrane_points"] = int(len(folds)), int(len(start))
-            if len(start):
-                marched = march_to_features(field, start, cfg.march_steps, cfg.march_tol, cfg.offset)
-                refined = qem_refine(field, marched, points, cfg.qem_k, cfg.qem_regularization)
-                found.append(refined)
-                if cfg.face_normals:
-                    # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point
-                    # off any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
-                    fit = fit_edges(refined, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
-                    sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points, cfg.arc_ratio)
-                    normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
-        if cfg.field_seeds != "membrane":
-            fit = fit_edges(points, points, grads, cfg.qem_k, cfg.plane_tolerance, cfg.plane_normal_deg)
-            sharp = fit.sharp(cfg.dihedral_deg, cfg.plane_min_points, cfg.arc_ratio)
-            on_edges, seg = sample_segments(*fit.segments(sharp), cfg.spacing, return_index=True)
-            found.append(on_edges)
-            normals.append(fit.mean_normal[sharp][seg])
-            stats["point_fits"] = int(sharp.sum())
-        feats = np.vstack(found)
-        keep = thin(feats, cfg.spacing)
-        feats = feats[keep]
-        if len(feats):
-            stats["mean_abs_sdf_after"] = float(np.abs(field.evaluate(feats)["sdf"]).mean())
-        if not cfg.face_normals or len(feats) == 0:
-            return feats, None
-        return feats, np.vstack(normals)[keep]
