@@ -102,6 +102,14 @@ class GridConfig:
         "layers) instead of the grid's features: the grid follows every bump's medial branch, and "
         "on the bunny its mf was blocks and q a maze (covering genus ~1500); 0: from the grid",
     )
+    medial_levels: int = param(
+        0,
+        ge=0,
+        doc="the medial MLP also reads the grid's coarsest this many levels (0: the coordinates alone), so mf "
+        "can follow the radius's jumps at a medial branch at those levels' scale",
+    )
+    medial_fourier: int = param(0, ge=0, doc="Gaussian Fourier features of the coordinates for the medial MLP")
+    medial_fourier_scale: float = param(2.0, gt=0, doc="std of those features' frequencies (cycles per unit)")
 
 
 #: Spatial-hash primes of Instant-NGP (the first is 1 so that a dense level needs no hashing).

@@ -25,8 +25,17 @@ class MedialFieldNet(nn.Module):
             nn.init.constant_(self.sdf_head.bias, -init_radius)
         medial_width = int(getattr(backbone_cfg, "medial_width", 0) or 0)
         self.medial_trunk = None
+        self.medial_features = 0  # grid features the medial trunk reads (its coarsest levels')
         if medial_width:  # a smooth trunk of its own for mf (see GridConfig.medial_width)
-            self.medial_trunk = MLP(MLPConfig(width=medial_width, depth=3, geometric_init=False))
+            self.medial_features = int(getattr(backbone_cfg, "medial_levels", 0)) * backbone_cfg.features
+            medial_cfg = MLPConfig(
+                width=medial_width,
+                depth=3,
+                geometric_init=False,
+                fourier_features=int(getattr(backbone_cfg, "medial_fourier", 0)),
+                fourier_scale=float(getattr(backbone_cfg, "medial_fourier_scale", 2.0)),
+            )
+            self.medial_trunk = MLP(medial_cfg, extra_dim=self.medial_features)
             w = medial_width
         self.mf_inner = self._head(w, head_width)
         self.mf_outer = self._head(w, head_width)
@@ -41,9 +50,14 @@ class MedialFieldNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(sdf, mf), each (N,)."""
-        h = self.trunk(x)
+        if self.medial_features:
+            encoding = self.trunk.encode(x)
+            h = self.trunk.mlp(x, encoding)
+            hm = self.medial_trunk(x, encoding[:, : self.medial_features])
+        else:
+            h = self.trunk(x)
+            hm = h if self.medial_trunk is None else self.medial_trunk(x)
         sdf = self.sdf_head(h).squeeze(-1)
-        hm = h if self.medial_trunk is None else self.medial_trunk(x)
         mf = torch.where(sdf < 0, self.mf_inner(hm).squeeze(-1), self.mf_outer(hm).squeeze(-1))
         return sdf, mf
 

@@ -32,6 +32,18 @@ class Sheet:
         return euler_medial_mesh(len(self.vertices), self.edges, self.faces)
 
 
+def keep_large_pieces(inside: np.ndarray, share: float) -> np.ndarray:
+    """The inside nodes whose 6-connected piece has at least ``share`` of the largest piece's nodes."""
+    from scipy import ndimage
+
+    label, n = ndimage.label(inside)
+    if n <= 1:
+        return inside
+    sizes = np.bincount(label.ravel())[1:]
+    keep = np.flatnonzero(sizes >= share * sizes.max()) + 1
+    return np.isin(label, keep)
+
+
 def node_stride(inside: np.ndarray, max_nodes: int) -> int:
     """The smallest k with at most ``max_nodes`` of every k-th grid node inside (the collapse's cost follows the
     node count)."""
@@ -197,3 +209,79 @@ def single_sheet(
     faces = _triangulate(x, cx.squares)
     stats = {"collapse_chi": cx.euler, "cubes_left": cx.cubes, "first_pass": first, "squares": int(len(cx.squares))}
     return Sheet(x, _lone_edges(cx), faces, stats)
+
+
+def simplified_sheet(
+    grid: dict,
+    evaluate,
+    membrane_vertices: np.ndarray,
+    membrane_faces: np.ndarray,
+    radii_of,
+    *,
+    max_nodes: int = 1_000_000,
+    speck_fraction: float = 0.01,
+    valley_share: float = 0.5,
+    off_axis: float = 0.75,
+    fin_area: float = 0.25,
+    target_vertices: int = 3000,
+    boundary_weight: float = 1.0,
+    max_turn_deg: float = 60.0,
+    tips: np.ndarray | None = None,
+    tip_reach: float = 0.01,
+):
+    """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
+    ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
+    ``speck_fraction`` of the largest dropped, q from ``evaluate(points)["q"]``, collapsed onto the membrane
+    (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
+    the spherical quadric error, vertices within ``tip_reach`` of the ``tips`` (feature points) kept in place.
+    Returns the ``MedialMesh`` and its stats (before and after simplification)."""
+    from qmdf.geometry.ma_format import MedialMesh
+    from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
+    from qmdf.medial.simplify import simplify_medial_mesh
+
+    stride = node_stride(grid["inside"], max_nodes)
+    spacing = np.asarray(grid["spacing"]) * stride
+    inside = keep_large_pieces(grid["inside"][::stride, ::stride, ::stride], speck_fraction)
+    if not inside.any():
+        from qmdf.errors import QmdfError
+
+        raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
+    nodes = np.argwhere(inside)
+    q = np.full(inside.shape, np.inf)
+    q[tuple(nodes.T)] = evaluate(grid["lo"] + nodes * spacing)["q"]
+    sheet = single_sheet(
+        inside, q, grid["lo"], spacing, membrane_vertices, membrane_faces, grid["eps"], valley_share, off_axis, fin_area
+    )
+    radii = radii_of(sheet.vertices)
+    stats = {
+        "nodes_inside": int(inside.sum()),
+        "grid_stride": stride,
+        "collapse": sheet.stats,
+        "before": {
+            "vertices": len(sheet.vertices),
+            "edges": len(sheet.edges),
+            "faces": len(sheet.faces),
+            "chi": sheet.euler,
+        },
+    }
+    v, e, f = sheet.vertices, sheet.edges, sheet.faces
+    if target_vertices and len(v) > target_vertices:
+        fixed = None
+        if tips is not None:
+            from scipy.spatial import cKDTree
+
+            fixed = cKDTree(tips).query(v)[0] < tip_reach
+        res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
+        v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
+        stats["simplify"] = res.stats
+    mat = MedialMesh(v, radii, e, f).with_face_edges()
+    stats["after"] = {
+        "vertices": len(v),
+        "edges": int(len(mat.edges)),
+        "faces": len(f),
+        "lone_edges": int(len(e)),
+        "chi": euler_medial_mesh(len(v), e, f),
+        "seam_edges": int(len(seam_edges(f))),
+        "rim_edges": int(len(single_face_edges(f))),
+    }
+    return mat, stats

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS
-from qmdf.errors import QmdfError
 from qmdf.medial.radii import RADIUS_SOURCES
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -77,18 +76,6 @@ class SheetConfig:
     tip_reach: float = param(0.01, gt=0, doc="vertices within this of a feature point stay in place (unit box)")
 
 
-def keep_large_pieces(inside: np.ndarray, share: float) -> np.ndarray:
-    """The inside nodes whose 6-connected piece has at least ``share`` of the largest piece's nodes."""
-    from scipy import ndimage
-
-    label, n = ndimage.label(inside)
-    if n <= 1:
-        return inside
-    sizes = np.bincount(label.ravel())[1:]
-    keep = np.flatnonzero(sizes >= share * sizes.max()) + 1
-    return np.isin(label, keep)
-
-
 @register_stage("sheet")
 class Sheet(Stage):
     """Collapse the covering's solid to one layer on the membrane; radii; SQEM simplification."""
@@ -99,77 +86,39 @@ class Sheet(Stage):
     outputs = {"sheet": MAT, "sheet_stats": JSON}
 
     def run(self, ctx: StageContext) -> None:
-        from qmdf.geometry.ma_format import MedialMesh
         from qmdf.medial.radii import mat_radii
-        from qmdf.medial.sheet import node_stride, single_sheet
-        from qmdf.medial.simplify import simplify_medial_mesh
+        from qmdf.medial.sheet import simplified_sheet
 
         cfg: SheetConfig = ctx.cfg
-        grid = ctx.load("covering_grid")
-        stride = node_stride(grid["inside"], cfg.max_nodes)
-        spacing = np.asarray(grid["spacing"]) * stride
-        inside = keep_large_pieces(grid["inside"][::stride, ::stride, ::stride], cfg.speck_fraction)
-        if not inside.any():
-            raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
         field = ctx.load("field")
-        nodes = np.argwhere(inside)
-        q = np.full(inside.shape, np.inf)
-        q[tuple(nodes.T)] = field.evaluate(grid["lo"] + nodes * spacing)["q"]
+        mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
+        tips = ctx.load("feature_points").points if ctx.has("feature_points") else None
         membrane = ctx.load("membrane")
-        sheet = single_sheet(
-            inside,
-            q,
-            grid["lo"],
-            spacing,
+        mat, stats = simplified_sheet(
+            ctx.load("covering_grid"),
+            field.evaluate,
             np.asarray(membrane.vertices),
             np.asarray(membrane.faces),
-            grid["eps"],
-            cfg.valley_share,
-            cfg.off_axis,
-            cfg.fin_area,
+            lambda x: mat_radii(x, cfg.radius, field, mesh, points),
+            max_nodes=cfg.max_nodes,
+            speck_fraction=cfg.speck_fraction,
+            valley_share=cfg.valley_share,
+            off_axis=cfg.off_axis,
+            fin_area=cfg.fin_area,
+            target_vertices=cfg.target_vertices,
+            boundary_weight=cfg.boundary_weight,
+            max_turn_deg=cfg.max_turn_deg,
+            tips=tips,
+            tip_reach=cfg.tip_reach,
         )
-        mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
-        radii = mat_radii(sheet.vertices, cfg.radius, field, mesh, points)
-        stats = {
-            "nodes_inside": int(inside.sum()),
-            "grid_stride": stride,
-            "collapse": sheet.stats,
-            "before": {
-                "vertices": len(sheet.vertices),
-                "edges": len(sheet.edges),
-                "faces": len(sheet.faces),
-                "chi": sheet.euler,
-            },
-        }
-        v, e, f = sheet.vertices, sheet.edges, sheet.faces
-        if cfg.target_vertices and len(v) > cfg.target_vertices:
-            tips = None
-            if ctx.has("feature_points"):
-                from scipy.spatial import cKDTree
-
-                tips = cKDTree(ctx.load("feature_points").points).query(v)[0] < cfg.tip_reach
-            res = simplify_medial_mesh(v, radii, e, f, cfg.target_vertices, cfg.boundary_weight, cfg.max_turn_deg, tips)
-            v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
-            stats["simplify"] = res.stats
-        mat = MedialMesh(v, radii, e, f).with_face_edges()
-        from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
-
-        stats["after"] = {
-            "vertices": len(v),
-            "edges": int(len(mat.edges)),
-            "faces": len(f),
-            "lone_edges": int(len(e)),
-            "chi": euler_medial_mesh(len(v), e, f),
-            "seam_edges": int(len(seam_edges(f))),
-            "rim_edges": int(len(single_face_edges(f))),
-        }
-        stats["compact"] = not cfg.target_vertices or len(v) <= cfg.compact_slack * cfg.target_vertices
+        v = len(mat.vertices)
+        stats["compact"] = not cfg.target_vertices or v <= cfg.compact_slack * cfg.target_vertices
         if not stats["compact"]:
             ctx.log.warning(
                 "the single sheet is not compact: simplification stopped at %d vertices (target %d; the "
                 "link condition refused %s collapses on a tangled complex, %d seam edges). export writes "
                 "the membrane as the MAT; the sheet stays in %s",
-                len(v),
+                v,
                 cfg.target_vertices,
                 stats.get("simplify", {}).get("link_rejected"),
                 stats["after"]["seam_edges"],
@@ -180,9 +129,9 @@ class Sheet(Stage):
         ctx.log.info(
             "single sheet: %d vertices, %d faces, %d lone edges, chi %d, %d seam edges (before "
             "simplification: %d vertices, chi %d)",
-            len(v),
-            len(f),
-            len(e),
+            v,
+            len(mat.faces),
+            stats["after"]["lone_edges"],
             stats["after"]["chi"],
             stats["after"]["seam_edges"],
             stats["before"]["vertices"],
