@@ -279,3 +279,26 @@ def test_another_backbones_settings_do_not_retrain(compose_cfg, tmp_path):
     opened = RunResult.open(runs[2].run_dir)
     assert opened.complete and opened.load("training")["steps"] == runs[2].load("training")["steps"]
     assert opened.path("field") == runs[2].path("field")
+
+
+def test_medial_levels_feed_the_grids_coarse_levels_to_mf_only():
+    from qmdf.fields.module import build_net
+
+    torch.manual_seed(0)
+    net = build_net("grid", {"levels": 4, "finest_resolution": 32, "log2_table_size": 12, "medial_levels": 2})
+    assert net.medial_features == 2 * 2
+    with torch.no_grad():
+        net.trunk.mlp.layers[0].weight.normal_()  # the geometric init leaves the sdf deaf to the grid at first
+    x = torch.rand(64, 3) - 0.5
+    sdf0, mf0 = net(x)
+    levels = net.trunk.offset.tolist() + [len(net.trunk.table)]
+    with torch.no_grad():  # change the finest level only: the sdf follows it, mf (reading two levels) does not
+        net.trunk.table[levels[3] :] += torch.randn_like(net.trunk.table[levels[3] :])
+    sdf1, mf1 = net(x)
+    same_side = (sdf0 < 0) == (sdf1 < 0)  # mf is the inner head's inside, the outer head's outside
+    assert not torch.allclose(sdf0, sdf1) and same_side.sum() > 10
+    assert torch.allclose(mf0[same_side], mf1[same_side])
+    with torch.no_grad():  # a coarse level moves both
+        net.trunk.table[: levels[1]] += torch.randn_like(net.trunk.table[: levels[1]])
+    sdf2, mf2 = net(x)
+    assert not torch.allclose(mf1, mf2)

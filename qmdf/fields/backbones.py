@@ -105,11 +105,10 @@ class GridConfig:
     medial_levels: int = param(
         0,
         ge=0,
-        doc="the medial MLP also reads the grid's coarsest this many levels (0: the coordinates alone), so mf "
-        "can follow the radius's jumps at a medial branch at those levels' scale",
+        doc="the medial MLP also reads the grid's coarsest this many levels (0: the coordinates alone). On the "
+        "bunny 4 levels lower q on the axis (p50 / p90 / p99 2.8e-3 / 11e-3 / 34e-3 against 4.5e-3 / 19e-3 / "
+        "48e-3) but the covering gets genus 9, the MAT chi -11 and CD 7.6e-3 (5.2e-3 with 0)",
     )
-    medial_fourier: int = param(0, ge=0, doc="Gaussian Fourier features of the coordinates for the medial MLP")
-    medial_fourier_scale: float = param(2.0, gt=0, doc="std of those features' frequencies (cycles per unit)")
 
 
 #: Spatial-hash primes of Instant-NGP (the first is 1 so that a dense level needs no hashing).

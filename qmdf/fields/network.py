@@ -28,13 +28,7 @@ class MedialFieldNet(nn.Module):
         self.medial_features = 0  # grid features the medial trunk reads (its coarsest levels')
         if medial_width:  # a smooth trunk of its own for mf (see GridConfig.medial_width)
             self.medial_features = int(getattr(backbone_cfg, "medial_levels", 0)) * backbone_cfg.features
-            medial_cfg = MLPConfig(
-                width=medial_width,
-                depth=3,
-                geometric_init=False,
-                fourier_features=int(getattr(backbone_cfg, "medial_fourier", 0)),
-                fourier_scale=float(getattr(backbone_cfg, "medial_fourier_scale", 2.0)),
-            )
+            medial_cfg = MLPConfig(width=medial_width, depth=3, geometric_init=False)
             self.medial_trunk = MLP(medial_cfg, extra_dim=self.medial_features)
             w = medial_width
         self.mf_inner = self._head(w, head_width)

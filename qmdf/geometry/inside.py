@@ -45,6 +45,24 @@ def mesh_closest(
     return np.sqrt(np.maximum(sq, 0.0)), np.asarray(face, np.int64), closest
 
 
+def mesh_distance_function(vertices: np.ndarray, faces: np.ndarray):
+    """``mesh_distance`` with the mesh's AABB tree built once: for callers that query the same mesh many times
+    (a bisection along rays queries it at every halving; the teacup's 199k-face tree takes 0.35 s to build)."""
+    import igl
+
+    v, f = _f64(vertices), np.ascontiguousarray(faces, np.int64)
+    tree = igl.AABB()
+    tree.init(v, f)
+
+    def distance(queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if len(queries) == 0:
+            return np.zeros(0), np.zeros((0, 3))
+        sq, _, closest = tree.squared_distance(v, f, _f64(queries))
+        return np.sqrt(np.maximum(sq, 0.0)), closest
+
+    return distance
+
+
 def mesh_signed_distance(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Distance to the mesh, negative where the winding number exceeds 1/2 (inside)."""
     dist, _ = mesh_distance(vertices, faces, queries)

@@ -46,6 +46,69 @@ def mat_radii(
     raise ValueError(f"unknown radius source {source!r}; one of {', '.join(RADIUS_SOURCES)}")
 
 
+def centre_on_data(
+    vertices: np.ndarray,
+    inside: np.ndarray,
+    mesh: tuple[np.ndarray, np.ndarray] | None = None,
+    points: np.ndarray | None = None,
+    tol: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex ``inside`` the shape moved to the centre of the data's maximal ball through its closest
+    point (the shrinking-ball step of Ma, Bae and Kobbelt 2012, from the vertex): from the closest point p, along
+    the ray through the vertex, the farthest centre whose distance to the data is still its distance to p (less
+    ``tol``), then one shrinking-ball step back onto the axis; its radius is that centre's distance. A vertex a
+    little off the axis has a ball that touches one side only, and its envelope falls short of the other side by
+    twice the offset; the moved one touches both. The data are ``mesh`` (vertices, faces; ``tol`` defaults to
+    3e-4 + 8% of the median edge, the mesh route's rays' tolerance for facets) or ``points`` (``tol`` defaults to
+    a quarter of their median distance to the 8th neighbour). Vertices outside stay, with their distance as
+    radius. Returns (centres, radii)."""
+    from qmdf.geometry.medial_radius import inward_medial_radii
+
+    x = np.asarray(vertices, np.float64)
+    if mesh is not None:
+        from qmdf.geometry.inside import mesh_distance_function
+
+        distance = mesh_distance_function(*mesh)
+        if tol is None:
+            v, f = mesh
+            tol = 3e-4 + 0.08 * float(np.median(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)))
+    elif points is not None:
+        from scipy.spatial import cKDTree
+
+        from qmdf.geometry.normals import local_spacing
+
+        tree = cKDTree(points)
+
+        def distance(q):
+            d, i = tree.query(q, workers=-1)
+            return d, points[i]
+
+        if tol is None:
+            tol = 0.25 * float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
+    else:
+        raise ValueError("centring on the data needs the input mesh or points")
+    d, foot = distance(x)
+    out, radii = x.copy(), d.copy()
+    move = np.flatnonzero(np.asarray(inside, bool) & (d > 0))
+    if len(move):
+        u = (x[move] - foot[move]) / d[move, None]
+        r = inward_medial_radii(foot[move], -u, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=20)
+        r = np.maximum(r, d[move])  # the vertex's own ball fits: the centre never moves back toward p
+        # The bisection stops past the axis by up to about tol. One shrinking-ball step back: the point of the
+        # ray equidistant from p and from the nearest data point p2 beyond it, t = |p2 - p|^2 / (2 u.(p2 - p)),
+        # taken when it lies within a few tol behind (not where p2 is p's own neighbour: a tip, a facet).
+        _, p2 = distance(foot[move] + r[:, None] * u)
+        w = p2 - foot[move]
+        along = np.einsum("ij,ij->i", u, w)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.einsum("ij,ij->i", w, w) / (2 * along)
+        back = (along > 0) & (t <= r) & (t >= np.maximum(d[move], r - 4 * tol))
+        r = np.where(back, t, r)
+        out[move] = foot[move] + r[:, None] * u
+        radii[move] = distance(out[move])[0]
+    return out, radii
+
+
 def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None):
     """The MAT of a contracted membrane: its faces (and their edges), each vertex's radius from ``radius``."""
     from qmdf.geometry.ma_format import MedialMesh

@@ -228,13 +228,15 @@ def simplified_sheet(
     max_turn_deg: float = 60.0,
     tips: np.ndarray | None = None,
     tip_reach: float = 0.01,
+    centre_of=None,
 ):
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
     ``speck_fraction`` of the largest dropped, q from ``evaluate(points)["q"]``, collapsed onto the membrane
     (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
-    the spherical quadric error, vertices within ``tip_reach`` of the ``tips`` (feature points) kept in place.
-    Returns the ``MedialMesh`` and its stats (before and after simplification)."""
+    the spherical quadric error, vertices within ``tip_reach`` of the ``tips`` (feature points) kept in place,
+    and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis. Returns the
+    ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -274,6 +276,11 @@ def simplified_sheet(
         res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
         v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
         stats["simplify"] = res.stats
+    if centre_of is not None:
+        moved, radii = centre_of(v)
+        step = np.linalg.norm(moved - v, axis=1)
+        stats["centred"] = {"median_move": float(np.median(step)), "max_move": float(step.max())}
+        v = moved
     mat = MedialMesh(v, radii, e, f).with_face_edges()
     stats["after"] = {
         "vertices": len(v),

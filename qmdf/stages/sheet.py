@@ -63,6 +63,11 @@ class SheetConfig:
     radius: str = param(
         "data", choices=RADIUS_SOURCES, doc="each vertex's radius before simplification (see export.radius)"
     )
+    centre: bool = param(
+        True,
+        doc="with radius=data: after simplification each vertex moves to the centre of the data's maximal ball "
+        "through its closest point (medial.radii.centre_on_data); the teacup's CD 1.36e-3 -> 0.68e-3",
+    )
     target_vertices: int = param(
         3000,
         ge=0,
@@ -86,7 +91,7 @@ class Sheet(Stage):
     outputs = {"sheet": MAT, "sheet_stats": JSON}
 
     def run(self, ctx: StageContext) -> None:
-        from qmdf.medial.radii import mat_radii
+        from qmdf.medial.radii import centre_on_data, mat_radii
         from qmdf.medial.sheet import simplified_sheet
 
         cfg: SheetConfig = ctx.cfg
@@ -94,6 +99,12 @@ class Sheet(Stage):
         mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
         tips = ctx.load("feature_points").points if ctx.has("feature_points") else None
         membrane = ctx.load("membrane")
+        centre_of = None
+        if cfg.centre and cfg.radius == "data":
+
+            def centre_of(x):
+                return centre_on_data(x, field.evaluate(x)["sdf"] < 0, mesh, points)
+
         mat, stats = simplified_sheet(
             ctx.load("covering_grid"),
             field.evaluate,
@@ -110,6 +121,7 @@ class Sheet(Stage):
             max_turn_deg=cfg.max_turn_deg,
             tips=tips,
             tip_reach=cfg.tip_reach,
+            centre_of=centre_of,
         )
         v = len(mat.vertices)
         stats["compact"] = not cfg.target_vertices or v <= cfg.compact_slack * cfg.target_vertices
