@@ -19,14 +19,13 @@ def test_box_vertices_off_the_axis_land_on_it_with_the_true_radius():
     field = BoxField()
     x = _near_axis(field, 400, 0.01)
     before = field.axis_distance(x)
-    inside = np.ones(len(x), bool)
     mesh = (np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    c, r = centre_on_data(x, inside, mesh=mesh, tol=1e-4)
+    c, r = centre_on_data(x, mesh=mesh, tol=1e-4)
     after = field.axis_distance(c)
     assert np.median(before) > 5e-3
     assert np.median(after) < 1e-6 and np.quantile(after, 0.9) < 1e-5
     # the default tolerance (for facets of curved meshes) is loose on this exact mesh, and still 10x closer
-    assert np.median(field.axis_distance(centre_on_data(x, inside, mesh=mesh)[0])) < 0.1 * np.median(before)
+    assert np.median(field.axis_distance(centre_on_data(x, mesh=mesh)[0])) < 0.1 * np.median(before)
     # the radius is the distance to the surface, and on the axis that is the ball touching two faces
     assert np.allclose(r, -field.sdf(c), atol=1e-9)
     # the envelope deficit a vertex off the axis leaves: its ball reaches one side only
@@ -41,10 +40,46 @@ def test_ellipsoid_points_input_and_outside_vertices_stay():
 
     points = trimesh.sample.sample_surface_even(mesh, 30000, seed=1)[0]
     x = _near_axis(field, 300, 0.01, seed=2)
-    c, r = centre_on_data(x, np.ones(len(x), bool), points=points)
+
+    def inside(q):
+        return field.sdf(q) < 0
+
+    c, r = centre_on_data(x, points=points, is_inside=inside)
     assert np.median(field.axis_distance(x)) > 5e-3
     assert np.median(field.axis_distance(c)) < 1e-4 and np.quantile(field.axis_distance(c), 0.9) < 1e-3
     outside = rng.uniform(0.6, 0.7, (5, 3))
-    c2, r2 = centre_on_data(outside, np.zeros(5, bool), points=points)
+    c2, r2 = centre_on_data(outside, points=points, is_inside=inside)
     assert np.array_equal(c2, outside)
     assert np.allclose(r2, np.linalg.norm(points[None] - outside[:, None], axis=2).min(1))
+
+
+def test_a_vertex_outside_that_the_field_calls_inside_does_not_fly_off():
+    """From outside, the ray through the closest point runs outward: the mesh's winding number keeps it."""
+    field = BoxField()
+    mesh = get_shape("box").mesh(16)
+    mesh = (np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    x = np.array([[0.0, 0.0, 0.27], [0.1, 0.0, 0.05]])  # 0.02 above the top face; inside
+    c, r = centre_on_data(x, mesh=mesh, tol=1e-4)
+    assert np.array_equal(c[0], x[0]) and abs(r[0] - 0.02) < 1e-9
+    assert field.axis_distance(c[1:])[0] < 1e-6
+    # a wrong inside test cannot move it out either: its centre would land outside
+    c, _ = centre_on_data(x[:1], mesh=mesh, is_inside=lambda q: np.abs(q[:, 2]) < 0.3, tol=1e-4)
+    assert np.array_equal(c, x[:1])
+
+
+def test_membrane_mat_is_centred_only_when_asked_and_with_data_radii():
+    import trimesh
+
+    from qmdf.medial.radii import membrane_to_mat
+
+    field = BoxField()
+    box = get_shape("box").mesh(16)
+    mesh = (np.asarray(box.vertices), np.asarray(box.faces))
+    x = _near_axis(field, 60, 0.01, seed=3)[:30]
+    membrane = trimesh.Trimesh(x, np.array([[0, 1, 2], [2, 3, 4]]), process=False)
+    as_is = membrane_to_mat(membrane, field, "data", mesh)
+    centred = membrane_to_mat(membrane, field, "data", mesh, centre=True)
+    by_sdf = membrane_to_mat(membrane, field, "sdf", mesh, centre=True)  # centring needs the data's radii
+    assert np.array_equal(as_is.vertices, x) and np.array_equal(by_sdf.vertices, x)
+    assert np.median(field.axis_distance(centred.vertices)) < 0.1 * np.median(field.axis_distance(x))
+    assert np.array_equal(centred.faces, as_is.faces)

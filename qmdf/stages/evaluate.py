@@ -15,7 +15,13 @@ from qmdf.stage import Stage, StageContext, register_stage
 
 @dataclass
 class EvaluateConfig:
-    samples: int = param(100_000, ge=100, doc="samples per surface for CD / HD")
+    samples: int = param(
+        30_000,
+        ge=100,
+        doc="samples per surface for CD / HD. 30k instead of 100k: 3x faster (the teacup's evaluate 17 s -> 6 s), "
+        "and its error is within the seed-to-seed spread of 100k (teacup CD 4.01e-4 / 4.09e-4 for seeds 0 / 1 at "
+        "100k, 4.09e-4 at 30k; HD 9.53e-3 / 9.98e-3 against 9.61e-3 / 9.39e-3; the bunny's CD within 1%)",
+    )
     resolution: int = param(
         128, ge=16, le=1024, doc="grid of the meshed reconstruction (sampling, pictures, mesh output)"
     )

@@ -27,6 +27,11 @@ class ExportConfig:
         doc="each vertex's radius: data (distance to the input mesh or "
         "points), sdf (learned |sdf|) or mf (learned medial field); qmdf.medial.radii says why data",
     )
+    centre: bool = param(
+        True,
+        doc="with radius=data: the membrane's vertices move onto the data's axis (sheet.centre's step), in "
+        "membrane.ma and where the membrane is the MAT (the kitten's non-compact sheet: CD 7.04e-3 -> 4.30e-3)",
+    )
 
 
 @register_stage("export")
@@ -53,7 +58,7 @@ class Export(Stage):
         "reconstruction": MESH,
         "membrane_mat": MAT,
     }
-    version = "2"  # 2: the single sheet when present; the membrane as membrane.ma
+    version = "3"  # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -61,7 +66,9 @@ class Export(Stage):
 
         norm = ctx.load("normalization")
         mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
-        membrane = membrane_to_mat(ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points)
+        membrane = membrane_to_mat(
+            ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points, centre=ctx.cfg.centre
+        )
         ctx.save("membrane_mat", membrane)
         use_sheet = ctx.has("sheet") and (
             ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True

@@ -89,9 +89,10 @@ class Sheet(Stage):
     inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
     optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
     outputs = {"sheet": MAT, "sheet_stats": JSON}
+    version = "2"  # 2: centre_on_data's inside test from the mesh's winding number
 
     def run(self, ctx: StageContext) -> None:
-        from qmdf.medial.radii import centre_on_data, mat_radii
+        from qmdf.medial.radii import centre_on_data, learned_inside, mat_radii
         from qmdf.medial.sheet import simplified_sheet
 
         cfg: SheetConfig = ctx.cfg
@@ -103,7 +104,7 @@ class Sheet(Stage):
         if cfg.centre and cfg.radius == "data":
 
             def centre_of(x):
-                return centre_on_data(x, field.evaluate(x)["sdf"] < 0, mesh, points)
+                return centre_on_data(x, mesh, points, learned_inside(field, mesh))
 
         mat, stats = simplified_sheet(
             ctx.load("covering_grid"),
