@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from qmdf.artifacts import FIELD, MESH, POINTS, write_json
+from qmdf.artifacts import FIELD, JSON, MESH, POINTS, write_json
 from qmdf.errors import QmdfError
 
 
@@ -20,6 +20,16 @@ def _latest_before(stages: list[dict], artifact: str, index: int) -> str | None:
         s["artifacts"][artifact]["path"] for s in stages if s["index"] < index and artifact in s.get("artifacts", {})
     ]
     return made[-1] if made else None
+
+
+def _input_data(run_dir: Path, stages: list[dict], index: int):
+    """(mesh, points) as ``stages.inputs.input_data`` gives them to export, from the run's artifacts."""
+    path = {k: _latest_before(stages, k, index) for k in ("input_info", "surface", "points")}
+    info = JSON.load(run_dir / path["input_info"]) if path["input_info"] else {}
+    if path["surface"] and info.get("kind") == "mesh" and not info.get("degradations"):
+        surface = MESH.load(run_dir / path["surface"])
+        return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
+    return None, POINTS.load(run_dir / path["points"]).points if path["points"] else None
 
 
 def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
@@ -66,7 +76,11 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     x, history, vol0, _ = contract(
         field, np.asarray(covering.vertices), faces, None, features=features, **contraction_params(cfg)
     )
-    mat = membrane_to_mat(surface_mesh(x, faces), field)
+    # the membrane as the run's export made it: its radii, centred on the input's axis when export centres
+    export = config.get("export", {})
+    radius, centre = export.get("radius", "data"), bool(export.get("centre", True))
+    mesh, points = _input_data(run_dir, stages, last["index"]) if radius == "data" else (None, None)
+    mat = membrane_to_mat(surface_mesh(x, faces), field, radius, mesh, points, centre=centre)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)
     resolution = int(config.get("export", {}).get("reconstruction_resolution", 128))
