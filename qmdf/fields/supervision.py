@@ -42,7 +42,7 @@ from qmdf.geometry.medial_radius import inward_medial_radii
 from qmdf.geometry.normals import estimate_oriented_normals, local_spacing, orient_by_winding, pca_normals
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
-from qmdf.geometry.triangles import interpolated_normals
+from qmdf.geometry.triangles import facet_tolerance, interpolated_normals
 
 ROUTES = ("mesh", "oriented_points", "raw_points", "paper")
 
@@ -242,8 +242,7 @@ def _mesh_ray_normals(points, normals, v, f) -> tuple[np.ndarray, float]:
     _, face, _ = mesh_closest(v, f, points)
     smooth = interpolated_normals(v, f, points, face)
     smooth = np.where((np.einsum("ij,ij->i", smooth, normals) < 0)[:, None], -smooth, smooth)
-    edges = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
-    return smooth, float(3e-4 + 0.08 * np.median(edges))
+    return smooth, facet_tolerance(v, f)
 
 
 def _points_sdf_targets(points, normals, queries, stats) -> np.ndarray:

@@ -57,3 +57,12 @@ def interpolated_normals(
     bary = np.stack([1.0 - b1 - b2, b1, b2], 1)
     n = (bary[:, :, None] * corner_normals(vertices, faces, crease_degrees)[face]).sum(1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def facet_tolerance(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The slack of a medial-ball test against a faceted mesh: 3e-4 plus 8% of the median edge. A ray along the
+    smooth normal drifts from its own facet by t * angle^2 / 2, and a marching-cubes mesh's corner normals are a
+    few degrees off (measured in ``qmdf.fields.supervision._mesh_ray_normals``)."""
+    v, f = np.asarray(vertices), np.asarray(faces)
+    edges = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
+    return float(3e-4 + 0.08 * np.median(edges))

@@ -78,8 +78,9 @@ def centre_on_data(
                 return mesh_winding_number(mesh[0], mesh[1], q) > 0.5
 
         if tol is None:
-            v, f = mesh
-            tol = 3e-4 + 0.08 * float(np.median(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)))
+            from qmdf.geometry.triangles import facet_tolerance
+
+            tol = facet_tolerance(*mesh)
     elif points is not None:
         from scipy.spatial import cKDTree
 
