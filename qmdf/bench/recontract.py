@@ -23,13 +23,15 @@ def _latest_before(stages: list[dict], artifact: str, index: int) -> str | None:
 
 
 def _input_data(run_dir: Path, stages: list[dict], index: int):
-    """(mesh, points) as ``stages.inputs.input_data`` gives them to export, from the run's artifacts."""
+    """(mesh, points) as export's ``input_data`` gives them, from the run's artifacts."""
+    from qmdf.stages.inputs import radius_data
+
     path = {k: _latest_before(stages, k, index) for k in ("input_info", "surface", "points")}
-    info = JSON.load(run_dir / path["input_info"]) if path["input_info"] else {}
-    if path["surface"] and info.get("kind") == "mesh" and not info.get("degradations"):
-        surface = MESH.load(run_dir / path["surface"])
-        return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
-    return None, POINTS.load(run_dir / path["points"]).points if path["points"] else None
+    return radius_data(
+        JSON.load(run_dir / path["input_info"]) if path["input_info"] else {},
+        (lambda: MESH.load(run_dir / path["surface"])) if path["surface"] else None,
+        (lambda: POINTS.load(run_dir / path["points"])) if path["points"] else None,
+    )
 
 
 def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:

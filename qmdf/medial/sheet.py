@@ -234,8 +234,8 @@ def simplified_sheet(
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
     ``speck_fraction`` of the largest dropped, q from ``evaluate(points)["q"]``, collapsed onto the membrane
     (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
-    the spherical quadric error, vertices within ``tip_reach`` of the ``tips`` (feature points) kept in place,
-    and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis. Returns the
+    the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto
+    the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Returns the
     ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
@@ -267,17 +267,25 @@ def simplified_sheet(
         },
     }
     v, e, f = sheet.vertices, sheet.edges, sheet.faces
-    if target_vertices and len(v) > target_vertices:
-        fixed = None
-        if tips is not None:
-            from scipy.spatial import cKDTree
 
-            fixed = cKDTree(tips).query(v)[0] < tip_reach
+    def near_tips(x):
+        if tips is None:
+            return None
+        from scipy.spatial import cKDTree
+
+        return cKDTree(tips).query(x)[0] < tip_reach
+
+    if target_vertices and len(v) > target_vertices:
+        fixed = near_tips(v)
         res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
         v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
         stats["simplify"] = res.stats
     if centre_of is not None:
-        moved, radii = centre_of(v)
+        moved, centred_radii = centre_of(v)
+        fixed = near_tips(v)  # feature tips stay on their sharp edges, as in the simplification
+        if fixed is not None:
+            moved[fixed], centred_radii[fixed] = v[fixed], radii[fixed]
+        radii = centred_radii
         step = np.linalg.norm(moved - v, axis=1)
         stats["centred"] = {"median_move": float(np.median(step)), "max_move": float(step.max())}
         v = moved

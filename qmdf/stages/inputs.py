@@ -10,8 +10,16 @@ from qmdf.stage import StageContext
 def input_data(ctx: StageContext):
     """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else the input points
     (what the method saw, never the clean reference of a simulated scan)."""
-    info = ctx.load("input_info") if ctx.has("input_info") else {}
-    if ctx.has("surface") and info.get("kind") == "mesh" and not info.get("degradations"):
-        surface = ctx.load("surface")
+    return radius_data(
+        ctx.load("input_info") if ctx.has("input_info") else {},
+        (lambda: ctx.load("surface")) if ctx.has("surface") else None,
+        (lambda: ctx.load("points")) if ctx.has("points") else None,
+    )
+
+
+def radius_data(info: dict, load_surface, load_points):
+    """``input_data``'s rule on a run's artifacts: ``load_surface`` / ``load_points`` load them (None: absent)."""
+    if load_surface is not None and info.get("kind") == "mesh" and not info.get("degradations"):
+        surface = load_surface()
         return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
-    return None, ctx.load("points").points if ctx.has("points") else None
+    return None, load_points().points if load_points is not None else None

@@ -89,7 +89,7 @@ class Sheet(Stage):
     inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
     optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
     outputs = {"sheet": MAT, "sheet_stats": JSON}
-    version = "2"  # 2: centre_on_data's inside test from the mesh's winding number
+    version = "3"  # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.radii import centre_on_data, learned_inside, mat_radii
