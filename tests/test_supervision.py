@@ -253,7 +253,7 @@ def test_the_zero_level_can_follow_the_poisson_surface_instead_of_noisy_points()
 
 
 def test_smooth_normals_of_a_faceted_mesh_and_its_medial_rays():
-    from qmdf.fields.supervision import _mesh_ray_normals
+    from qmdf.geometry.medial_radius import mesh_ray_normals
     from qmdf.geometry.triangles import corner_normals, interpolated_normals
 
     # a coarse sphere: the interpolated normal is the radial direction far better than the face's
@@ -272,7 +272,7 @@ def test_smooth_normals_of_a_faceted_mesh_and_its_medial_rays():
     torus = get_shape("torus").mesh(64)
     v, f = np.asarray(torus.vertices), np.asarray(torus.faces)
     pts, nrm = _samples(torus, 3000)
-    rays, tol = _mesh_ray_normals(pts, nrm, v, f)
+    rays, tol = mesh_ray_normals(pts, nrm, v, f)
     distance = lambda q: mesh_distance(v, f, q)[0]  # noqa: E731
     r = inward_medial_radii(pts, rays, distance, tol=tol)
     r_face = inward_medial_radii(pts, nrm, distance, tol=tol)

@@ -30,7 +30,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from qmdf.geometry.inside import (
-    mesh_closest,
     mesh_distance,
     mesh_distance_function,
     mesh_winding_number,
@@ -38,11 +37,11 @@ from qmdf.geometry.inside import (
     points_distance,
     points_winding_number,
 )
-from qmdf.geometry.medial_radius import inward_medial_radii
+from qmdf.geometry.medial_radius import inward_medial_radii, mesh_outward_normals, mesh_ray_normals
 from qmdf.geometry.normals import estimate_oriented_normals, local_spacing, orient_by_winding, pca_normals
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
-from qmdf.geometry.triangles import facet_tolerance, interpolated_normals
+
 
 ROUTES = ("mesh", "oriented_points", "raw_points", "paper")
 
@@ -103,9 +102,9 @@ def build_supervision(
     origins, ray_normals, proxy_mesh = None, None, None  # rays start at the points, along their normals
     if route == "mesh":
         v, f = mesh
-        normals = _mesh_outward_normals(points, normals, v, f, stats)
+        normals, stats["normals_turned"] = mesh_outward_normals(points, normals, v, f)
         if mesh_rays == "smooth":
-            ray_normals, tol = _mesh_ray_normals(points, normals, v, f)
+            ray_normals, tol = mesh_ray_normals(points, normals, v, f)
         else:  # along the faces' normals, the test nearly exact (ablation: the version of 2026-11-30)
             ray_normals, tol = normals, 1e-4
         stats["mesh_rays"], stats["ray_tolerance"] = mesh_rays, tol
@@ -213,36 +212,6 @@ def build_supervision(
 
 def _unit(n: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
-def _mesh_outward_normals(points, normals, v, f, stats) -> np.ndarray:
-    """The samples' face normals turned where the winding number is higher ahead of them than behind."""
-    if normals is None:
-        normals, _ = pca_normals(points)
-    n = _unit(normals)
-    step = 1e-3
-    w = mesh_winding_number(v, f, np.concatenate([points + step * n, points - step * n]))
-    inward = w[: len(points)] > w[len(points) :]
-    stats["normals_turned"] = int(inward.sum())
-    return np.where(inward[:, None], -n, n)
-
-
-def _mesh_ray_normals(points, normals, v, f) -> tuple[np.ndarray, float]:
-    """The directions of the medial rays from mesh samples, and the tolerance of the ball test.
-
-    A faceted mesh's exact medial axis has a sheet for every convex edge, so a ray along a face normal meets one a
-    short way in (the 128-resolution torus: radii a median 0.055 short of its 0.15 tube; the 3,485-vertex bunny:
-    median 0.038, the same rays with a looser test 0.07). The rays follow the smooth surface the facets
-    approximate instead: normals interpolated from the corners (``corner_normals``; sharp edges keep their
-    faces'), turned to the side the winding number chose. The ray's own facet then drifts from the ball by
-    t * angle^2 / 2, and a marching-cubes mesh's corner normals are a few degrees off: the tolerance absorbs
-    both, 3e-4 plus 8% of the median edge (the teacup 9e-4: 0.01% of its rays short of their 16 neighbours'
-    median by 30%, 0.75% at 3e-4, 3.3% along face normals; the torus 1.8e-3, radii within 3e-4 of its tube;
-    the bunny and kitten 2.7e-3). Past the axis the test over-shoots by at most tol / 2."""
-    _, face, _ = mesh_closest(v, f, points)
-    smooth = interpolated_normals(v, f, points, face)
-    smooth = np.where((np.einsum("ij,ij->i", smooth, normals) < 0)[:, None], -smooth, smooth)
-    return smooth, facet_tolerance(v, f)
 
 
 def _points_sdf_targets(points, normals, queries, stats) -> np.ndarray:

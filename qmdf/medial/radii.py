@@ -46,6 +46,30 @@ def mat_radii(
     raise ValueError(f"unknown radius source {source!r}; one of {', '.join(RADIUS_SOURCES)}")
 
 
+def data_distance(mesh: tuple[np.ndarray, np.ndarray] | None = None, points: np.ndarray | None = None):
+    """(distance, tol): ``distance(q) -> (d, closest point)`` to the ``mesh`` (one AABB tree) or else the ``points``
+    (one KD-tree), and the tolerance of a ball test against them: a mesh's facet tolerance (3e-4 + 8% of the
+    median edge), a quarter of the points' median distance to their 8th neighbour."""
+    if mesh is not None:
+        from qmdf.geometry.inside import mesh_distance_function
+        from qmdf.geometry.triangles import facet_tolerance
+
+        return mesh_distance_function(*mesh), facet_tolerance(*mesh)
+    if points is None:
+        raise ValueError("a distance to the data needs the input mesh or points")
+    from scipy.spatial import cKDTree
+
+    from qmdf.geometry.normals import local_spacing
+
+    tree = cKDTree(points)
+
+    def distance(q):
+        d, i = tree.query(q, workers=-1)
+        return d, points[i]
+
+    return distance, 0.25 * float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
+
+
 def centre_on_data(
     vertices: np.ndarray,
     mesh: tuple[np.ndarray, np.ndarray] | None = None,
@@ -67,35 +91,14 @@ def centre_on_data(
     from qmdf.geometry.medial_radius import inward_medial_radii
 
     x = np.asarray(vertices, np.float64)
-    if mesh is not None:
-        from qmdf.geometry.inside import mesh_distance_function
+    distance, data_tol = data_distance(mesh, points)
+    tol = data_tol if tol is None else tol
+    if is_inside is None and mesh is not None:
+        from qmdf.geometry.inside import mesh_winding_number
 
-        distance = mesh_distance_function(*mesh)
-        if is_inside is None:
-            from qmdf.geometry.inside import mesh_winding_number
+        def is_inside(q):
+            return mesh_winding_number(mesh[0], mesh[1], q) > 0.5
 
-            def is_inside(q):
-                return mesh_winding_number(mesh[0], mesh[1], q) > 0.5
-
-        if tol is None:
-            from qmdf.geometry.triangles import facet_tolerance
-
-            tol = facet_tolerance(*mesh)
-    elif points is not None:
-        from scipy.spatial import cKDTree
-
-        from qmdf.geometry.normals import local_spacing
-
-        tree = cKDTree(points)
-
-        def distance(q):
-            d, i = tree.query(q, workers=-1)
-            return d, points[i]
-
-        if tol is None:
-            tol = 0.25 * float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
-    else:
-        raise ValueError("centring on the data needs the input mesh or points")
     if is_inside is None:
         raise ValueError("centring on points needs is_inside (the learned sign)")
     d, foot = distance(x)

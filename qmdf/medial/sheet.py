@@ -229,14 +229,19 @@ def simplified_sheet(
     tips: np.ndarray | None = None,
     tip_reach: float = 0.01,
     centre_of=None,
+    refine_of=None,
+    refine_vertices: int = 0,
 ):
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
     ``speck_fraction`` of the largest dropped, q from ``evaluate(points)["q"]``, collapsed onto the membrane
     (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
     the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto
-    the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Returns the
-    ``MedialMesh`` and its stats (before and after simplification)."""
+    the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last,
+    ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to
+    ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``); the simplification
+    leaves room for them, so the MAT has at most ``target_vertices``. Returns the ``MedialMesh`` and its stats
+    (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -275,9 +280,10 @@ def simplified_sheet(
 
         return cKDTree(tips).query(x)[0] < tip_reach
 
-    if target_vertices and len(v) > target_vertices:
+    reserve = min(refine_vertices, target_vertices // 2) if refine_of is not None and target_vertices else 0
+    if target_vertices and len(v) > target_vertices - reserve:
         fixed = near_tips(v)
-        res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
+        res = simplify_medial_mesh(v, radii, e, f, target_vertices - reserve, boundary_weight, max_turn_deg, fixed)
         v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
         stats["simplify"] = res.stats
     if centre_of is not None:
@@ -289,6 +295,9 @@ def simplified_sheet(
         step = np.linalg.norm(moved - v, axis=1)
         stats["centred"] = {"median_move": float(np.median(step)), "max_move": float(step.max())}
         v = moved
+    if refine_of is not None and refine_vertices > 0:
+        budget = refine_vertices if not target_vertices else max(target_vertices - len(v), 0)
+        v, radii, e, f, stats["coverage"] = refine_of(v, radii, e, f, budget)
     mat = MedialMesh(v, radii, e, f).with_face_edges()
     stats["after"] = {
         "vertices": len(v),

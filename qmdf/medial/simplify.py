@@ -81,22 +81,217 @@ def _turns_within(p, q, min_cos):
     return True
 
 
-def _initial_heap(Q: _Quadrics, faces: np.ndarray, edges: np.ndarray) -> list:
-    """(cost, a, b, 0, 0) for every edge, all 4x4 systems solved at once."""
+def _initial_costs(Q: _Quadrics, faces: np.ndarray, edges: np.ndarray):
+    """(cost, a, b) of merging the ends of every edge (a < b), all 4x4 systems solved at once."""
     e = np.concatenate([edges, faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e = np.unique(np.sort(e, axis=1), axis=0)
     e = e[e[:, 0] != e[:, 1]]
     if not len(e):
-        return []
+        return np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64)
     A = Q.A[e[:, 0]] + Q.A[e[:, 1]]
     b = Q.b[e[:, 0]] + Q.b[e[:, 1]]
     c = Q.c[e[:, 0]] + Q.c[e[:, 1]]
     x = np.linalg.solve(A, b[:, :, None])[:, :, 0]
     x[:, 3] = np.maximum(x[:, 3], 0.0)
     cost = np.maximum(np.einsum("ki,kij,kj->k", x, A, x) - 2 * (b * x).sum(1) + c, 0.0)
-    heap = [(float(k), int(i), int(j), 0, 0) for k, (i, j) in zip(cost, e)]
+    return cost, e[:, 0].astype(np.int64), e[:, 1].astype(np.int64)
+
+
+# Adjacency as lists used as sets (a vertex has few faces): numba's own sets can hang after many removals
+# (numba issue 8627).
+@njit(cache=True)
+def _add(items, x):
+    for y in items:
+        if y == x:
+            return
+    items.append(x)
+
+
+@njit(cache=True)
+def _discard(items, x):
+    for i in range(len(items)):
+        if items[i] == x:
+            items[i] = items[len(items) - 1]
+            items.pop()
+            return
+
+
+@njit(cache=True)
+def _has(fv, f, w):
+    return fv[f, 0] == w or fv[f, 1] == w or fv[f, 2] == w
+
+
+@njit(cache=True)
+def _neighbours(v, face_of, lone, fv):
+    out = [np.int64(x) for x in range(0)]
+    for u in lone[v]:
+        _add(out, u)
+    for f in face_of[v]:
+        for k in range(3):
+            if fv[f, k] != v:
+                _add(out, fv[f, k])
+    return out
+
+
+@njit(cache=True)
+def _other_pair(fv, f, v, n):
+    """The face's two corners other than v, as one number."""
+    lo, hi = -1, -1
+    for k in range(3):
+        w = fv[f, k]
+        if w != v:
+            if lo < 0:
+                lo = w
+            else:
+                hi = w
+    return min(lo, hi) * n + max(lo, hi)
+
+
+@njit(cache=True)
+def _link_ok(a, b, shared, face_of, lone, fv, n):
+    """Lk(a) & Lk(b) = Lk(ab): the common neighbours are exactly the opposite corners of the faces on ab (the
+    ``shared`` faces), and no edge of two other corners lies in a face of a and in a face of b."""
+    opposite = [np.int64(x) for x in range(0)]
+    for f in shared:
+        for k in range(3):
+            w = fv[f, k]
+            if w != a and w != b:
+                _add(opposite, w)
+    nb = _neighbours(b, face_of, lone, fv)
+    common = 0
+    for w in _neighbours(a, face_of, lone, fv):
+        if w in nb:
+            if w not in opposite:
+                return False
+            common += 1
+    if common != len(opposite):
+        return False
+    ea = [np.int64(x) for x in range(0)]
+    for f in face_of[a]:
+        if f not in shared:
+            ea.append(_other_pair(fv, f, a, n))
+    for f in face_of[b]:
+        if f not in shared and _other_pair(fv, f, b, n) in ea:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _turns_ok(a, b, x, face_of, fv, m, min_cos):
+    """No face of a or b but those on ab turns by more than acos(min_cos) when a and b move to x."""
+    rows = [np.int64(f) for f in face_of[a] if not _has(fv, f, b)]
+    for f in face_of[b]:
+        if not _has(fv, f, a):
+            rows.append(f)
+    if len(rows) == 0:
+        return True
+    p = np.empty((len(rows), 3, 3))
+    q = np.empty((len(rows), 3, 3))
+    for i in range(len(rows)):
+        for k in range(3):
+            w = fv[rows[i], k]
+            for d in range(3):
+                p[i, k, d] = m[w, d]
+                q[i, k, d] = x[d] if (w == a or w == b) else m[w, d]
+    return _turns_within(p, q, min_cos)
+
+
+@njit(cache=True)
+def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_b, target, min_cos):
+    """The collapse loop of ``simplify_medial_mesh`` (see there): cheapest first, link condition, turn test;
+    ``m`` (spheres), ``fv`` (faces), ``tips`` and the quadrics are updated in place. Returns (alive, face_alive,
+    lone edges, collapses, link-rejected, turn-rejected)."""
+    n = m.shape[0]
+    face_of = [[np.int64(x) for x in range(0)] for _ in range(n)]
+    lone = [[np.int64(x) for x in range(0)] for _ in range(n)]
+    for f in range(fv.shape[0]):
+        for k in range(3):
+            _add(face_of[fv[f, k]], f)
+    for k in range(lone_pairs.shape[0]):
+        i, j = lone_pairs[k, 0], lone_pairs[k, 1]
+        if i != j:
+            _add(lone[i], j)
+            _add(lone[j], i)
+    face_alive = np.ones(fv.shape[0], np.bool_)
+    alive = np.ones(n, np.bool_)
+    stamp = np.zeros(n, np.int64)
+    heap = [(heap_cost[k], heap_a[k], heap_b[k], np.int64(0), np.int64(0)) for k in range(len(heap_cost))]
     heapq.heapify(heap)
-    return heap
+    remaining = n
+    collapses = rejected = flipped = 0
+    while remaining > target and len(heap) > 0:
+        cost, a, b, sa, sb = heapq.heappop(heap)
+        if not (alive[a] and alive[b]) or stamp[a] != sa or stamp[b] != sb:
+            continue
+        if tips[a] and tips[b]:
+            continue
+        _, x = _best(QA, Qb, Qc, m, a, b)
+        shared = [np.int64(f) for f in face_of[a] if _has(fv, f, b)]
+        if not _link_ok(a, b, shared, face_of, lone, fv, n):
+            rejected += 1
+            continue
+        if not _turns_ok(a, b, x, face_of, fv, m, min_cos):
+            flipped += 1
+            continue
+        # contract b into a
+        for f in shared:
+            face_alive[f] = False
+            for k in range(3):
+                _discard(face_of[fv[f, k]], f)
+        for f in face_of[b]:
+            for k in range(3):
+                if fv[f, k] == b:
+                    fv[f, k] = a
+            _add(face_of[a], f)
+        face_of[b].clear()
+        for w in lone[b]:
+            _discard(lone[w], b)
+            if w != a:
+                _add(lone[w], a)
+                _add(lone[a], w)
+        _discard(lone[a], b)
+        lone[b].clear()
+        # a face's side that no face holds any more stays as a lone edge
+        for f in shared:
+            for k in range(3):
+                w = fv[f, k]
+                if w != a and w != b:
+                    held = False
+                    for g in face_of[a]:
+                        if _has(fv, g, w):
+                            held = True
+                            break
+                    if not held:
+                        _add(lone[a], w)
+                        _add(lone[w], a)
+        QA[a] += QA[b]
+        Qb[a] += Qb[b]
+        Qc[a] += Qc[b]
+        m[a] = x
+        tips[a] = tips[a] or tips[b]
+        alive[b] = False
+        stamp[a] += 1
+        remaining -= 1
+        collapses += 1
+        for u in _neighbours(a, face_of, lone, fv):
+            i, j = (a, u) if a < u else (u, a)
+            c, _ = _best(QA, Qb, Qc, m, i, j)
+            heapq.heappush(heap, (c, i, j, stamp[i], stamp[j]))
+    count = 0
+    for v in range(n):
+        if alive[v]:
+            for u in lone[v]:
+                if v < u:
+                    count += 1
+    out = np.empty((count, 2), np.int64)
+    count = 0
+    for v in range(n):
+        if alive[v]:
+            for u in lone[v]:
+                if v < u:
+                    out[count, 0], out[count, 1] = v, u
+                    count += 1
+    return alive, face_alive, out, collapses, rejected, flipped
 
 
 @dataclass
@@ -226,116 +421,20 @@ def simplify_medial_mesh(
     if mean_area == 0 and len(edges):
         mean_area = float(np.mean(np.sum((m[edges[:, 0], :3] - m[edges[:, 1], :3]) ** 2, 1)))
     Q = initial_quadrics(m, faces, edges, boundary_weight, tips, 1e-3 * max(mean_area, 1e-12))
-    face_of = [set() for _ in range(n)]
-    for k, f in enumerate(faces):
-        for v in f:
-            face_of[v].add(k)
-    lone = [set() for _ in range(n)]
-    for i, j in edges:
-        if i != j:
-            lone[i].add(j)
-            lone[j].add(i)
-    fv = [list(f) for f in faces]
-    face_alive = np.ones(len(faces), bool)
-    alive = np.ones(n, bool)
-    stamp = np.zeros(n, np.int64)
-    min_cos = math.cos(math.radians(max_turn_deg))
-
-    def neighbours(v):
-        s = set(lone[v])
-        for f in face_of[v]:
-            s.update(fv[f])
-        s.discard(v)
-        return s
-
-    def best(a, b):
-        return _best(Q.A, Q.b, Q.c, m, a, b)
-
-    def push(a, b):
-        cost, _ = best(a, b)
-        heapq.heappush(heap, (cost, a, b, stamp[a], stamp[b]))
-
-    heap = _initial_heap(Q, faces, edges)
-
-    def link_ok(a, b):
-        shared = {f for f in face_of[a] if b in fv[f]}
-        opposite = {w for f in shared for w in fv[f] if w != a and w != b}
-        if (neighbours(a) & neighbours(b)) != opposite:
-            return False
-        ea = {frozenset(w for w in fv[f] if w != a) for f in face_of[a] - shared}
-        eb = {frozenset(w for w in fv[f] if w != b) for f in face_of[b] - shared}
-        return not (ea & eb)
-
-    def turns_ok(a, b, x):
-        kept = [fv[f] for f in face_of[a] | face_of[b] if not (a in fv[f] and b in fv[f])]
-        if not kept:
-            return True
-        corners = np.array(kept)
-        p = m[corners, :3]
-        moved = (corners == a) | (corners == b)
-        new = np.where(moved[:, :, None], x[:3], p)
-        return _turns_within(p, new, min_cos)
-
-    remaining = n
-    collapses = rejected = flipped = 0
-    while remaining > target_vertices and heap:
-        cost, a, b, sa, sb = heapq.heappop(heap)
-        if not (alive[a] and alive[b]) or stamp[a] != sa or stamp[b] != sb:
-            continue
-        if tips[a] and tips[b]:
-            continue
-        _, x = best(a, b)
-        if not link_ok(a, b):
-            rejected += 1
-            continue
-        if not turns_ok(a, b, x):
-            flipped += 1
-            continue
-        # contract b into a
-        shared = {f for f in face_of[a] if b in fv[f]}
-        for f in shared:
-            face_alive[f] = False
-            for w in fv[f]:
-                face_of[w].discard(f)
-        for f in list(face_of[b]):
-            fv[f] = [a if w == b else w for w in fv[f]]
-            face_of[a].add(f)
-        face_of[b].clear()
-        for w in lone[b]:
-            lone[w].discard(b)
-            if w != a:
-                lone[w].add(a)
-                lone[a].add(w)
-        lone[a].discard(b)
-        lone[b].clear()
-        # a face's side that no face holds any more stays as a lone edge
-        for f in shared:
-            for w in fv[f]:
-                if w != a and w != b and not any(w in fv[g] for g in face_of[a]):
-                    lone[a].add(w)
-                    lone[w].add(a)
-        Q.A[a] += Q.A[b]
-        Q.b[a] += Q.b[b]
-        Q.c[a] += Q.c[b]
-        m[a] = x
-        tips[a] = tips[a] or tips[b]
-        alive[b] = False
-        stamp[a] += 1
-        remaining -= 1
-        collapses += 1
-        for u in neighbours(a):
-            push(a, u) if a < u else push(u, a)
+    cost, ea, eb = _initial_costs(Q, faces, edges)
+    fv = faces.copy()
+    alive, face_alive, lone, collapses, rejected, flipped = _collapse_loop(
+        m, fv, edges, tips, Q.A, Q.b, Q.c, cost, ea, eb, int(target_vertices), math.cos(math.radians(max_turn_deg))
+    )
     index = np.full(n, -1)
     index[alive] = np.arange(int(alive.sum()))
-    out_faces = np.array([[index[w] for w in fv[f]] for f in np.flatnonzero(face_alive)], np.int64).reshape(-1, 3)
-    out_edges = np.array(
-        sorted({(index[v], index[u]) for v in np.flatnonzero(alive) for u in lone[v] if v < u}), np.int64
-    ).reshape(-1, 2)
+    out_faces = index[fv[face_alive]].reshape(-1, 3)
+    out_edges = np.unique(index[lone].reshape(-1, 2), axis=0) if len(lone) else np.zeros((0, 2), np.int64)
     stats = {
         "vertices_before": n,
         "vertices": int(alive.sum()),
-        "collapses": collapses,
-        "link_rejected": rejected,
-        "turn_rejected": flipped,
+        "collapses": int(collapses),
+        "link_rejected": int(rejected),
+        "turn_rejected": int(flipped),
     }
     return SimplifyResult(m[alive, :3], m[alive, 3], out_edges, out_faces, stats)

@@ -12,7 +12,7 @@ from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_k
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
-from qmdf.stages.inputs import input_data
+from qmdf.stages.inputs import input_data, input_surface_balls
 
 
 @dataclass
@@ -31,6 +31,13 @@ class ExportConfig:
         True,
         doc="with radius=data: the membrane's vertices move onto the data's axis (sheet.centre's step), in "
         "membrane.ma and where the membrane is the MAT (the kitten's non-compact sheet: CD 7.04e-3 -> 4.30e-3)",
+    )
+    coverage_vertices: int = param(
+        1000,
+        ge=0,
+        doc="with radius=data, where the membrane is the MAT (a sheet that is not compact): up to this many "
+        "vertices added where its envelope falls short of the surface (sheet.coverage_vertices' step, "
+        "medial.coverage, with its default settings); membrane.ma stays as contracted",
     )
 
 
@@ -58,7 +65,7 @@ class Export(Stage):
         "reconstruction": MESH,
         "membrane_mat": MAT,
     }
-    version = "3"  # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data
+    version = "4"  # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data; 4: coverage
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -74,6 +81,8 @@ class Export(Stage):
             ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True
         )
         mat = ctx.load("sheet") if use_sheet else membrane
+        if not use_sheet and ctx.cfg.radius == "data" and ctx.cfg.coverage_vertices:
+            mat = self._covered(ctx, mat, mesh, points)
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
@@ -116,3 +125,21 @@ class Export(Stage):
             radii.max(),
             len(recon.faces),
         )
+
+    @staticmethod
+    def _covered(ctx: StageContext, mat, mesh, points):
+        from qmdf.geometry.ma_format import MedialMesh
+        from qmdf.medial.coverage import refine_coverage
+
+        balls = input_surface_balls(ctx, ctx.load("field"), mesh, points)
+        v, r, e, f, stats = refine_coverage(
+            mat.vertices, mat.radii, mat.lone_edges(), mat.faces, balls, ctx.cfg.coverage_vertices
+        )
+        ctx.log.info(
+            "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "
+            "(was %.2e)",
+            stats["added"],
+            stats.get("shortfall_after", {}).get("mean", float("nan")),
+            stats.get("shortfall_before", {}).get("mean", float("nan")),
+        )
+        return MedialMesh(v, r, e, f).with_face_edges()

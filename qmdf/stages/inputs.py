@@ -23,3 +23,22 @@ def radius_data(info: dict, load_surface, load_points):
         surface = load_surface()
         return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
     return None, load_points().points if load_points is not None else None
+
+
+def input_surface_balls(ctx: StageContext, field, mesh, points):
+    """The data's medial balls behind the surface samples (``medial.coverage.surface_balls``): on a mesh (``mesh``
+    from ``input_data``) the run's sampled points, their normals turned by the winding number; on a cloud
+    (``points``) the input points with the learned sdf's gradient as normals, centres kept where the field says
+    inside."""
+    from qmdf.medial.coverage import surface_balls
+
+    if mesh is not None:
+        if ctx.has("points"):
+            samples = ctx.load("points")
+        else:
+            from qmdf.geometry.sampling import sample_surface
+
+            samples = sample_surface(*mesh, 20_000, np.random.default_rng(0))
+        return surface_balls(samples.points, samples.normals, mesh)
+    grad = field.evaluate(points, grad=True)["sdf_grad"].astype(np.float64)
+    return surface_balls(points, grad, is_inside=lambda q: field.evaluate(q)["sdf"] < 0)

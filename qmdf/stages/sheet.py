@@ -1,7 +1,9 @@
 """``sheet``: the single-layer medial mesh. The covering's solid collapses to one layer with the solid's
 topology (``qmdf.medial.thinning``), placed on the contracted membrane (``qmdf.medial.sheet``), given radii
 from the input (``qmdf.medial.radii``) and simplified under the spherical quadric error without a change of
-topology (``qmdf.medial.simplify``). ``export`` writes it as the MAT; the membrane stays for comparison."""
+topology (``qmdf.medial.simplify``), its vertices centred on the data's axis (``qmdf.medial.radii``) and
+completed where its envelope falls short of the surface (``qmdf.medial.coverage``). ``export`` writes it as the
+MAT; the membrane stays for comparison."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS
 from qmdf.medial.radii import RADIUS_SOURCES
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
-from qmdf.stages.inputs import input_data
+from qmdf.stages.inputs import input_data, input_surface_balls
 
 
 @dataclass
@@ -79,19 +81,46 @@ class SheetConfig:
     )
     max_turn_deg: float = param(60.0, gt=0, le=180, doc="refuse a collapse that turns a face by more than this")
     tip_reach: float = param(0.01, gt=0, doc="vertices within this of a feature point stay in place (unit box)")
+    coverage_vertices: int = param(
+        1000,
+        ge=0,
+        doc="with radius=data: after centring, up to this many vertices added where the envelope falls short of "
+        "the surface, each the data's medial ball behind the sample farthest out (medial.coverage); the "
+        "simplification leaves room for them within target_vertices. 0: none",
+    )
+    coverage_tolerance: float = param(
+        1e-3,
+        gt=0,
+        doc="a surface sample farther than this outside the envelope is uncovered (unit box); once all are "
+        "within it, what is left of the budget goes to the smaller gaps, down to an eighth of it",
+    )
+    coverage_spacing: float = param(
+        0.01, gt=0, doc="per round, no two added balls' samples closer than this (or half the ball's radius)"
+    )
+    coverage_overshoot: float = param(
+        5e-3,
+        gt=0,
+        doc="refuse an added vertex whose new edges' balls reach out of the data by more than this (a spike "
+        "to a branch the sheet lacks)",
+    )
+    coverage_rounds: int = param(10, ge=1, doc="rounds of insertion (the envelope is re-measured after each)")
 
 
 @register_stage("sheet")
 class Sheet(Stage):
-    """Collapse the covering's solid to one layer on the membrane; radii; SQEM simplification."""
+    """Collapse the covering's solid to one layer on the membrane; radii; SQEM simplification; centring;
+    coverage."""
 
     Config = SheetConfig
     inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
     optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
     outputs = {"sheet": MAT, "sheet_stats": JSON}
-    version = "3"  # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred
+    version = (
+        "4"  # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage
+    )
 
     def run(self, ctx: StageContext) -> None:
+        from qmdf.medial.coverage import refine_coverage
         from qmdf.medial.radii import centre_on_data, learned_inside, mat_radii
         from qmdf.medial.sheet import simplified_sheet
 
@@ -100,11 +129,28 @@ class Sheet(Stage):
         mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
         tips = ctx.load("feature_points").points if ctx.has("feature_points") else None
         membrane = ctx.load("membrane")
-        centre_of = None
+        centre_of = refine_of = None
         if cfg.centre and cfg.radius == "data":
 
             def centre_of(x):
                 return centre_on_data(x, mesh, points, learned_inside(field, mesh))
+
+        if cfg.coverage_vertices and cfg.radius == "data":
+            balls = input_surface_balls(ctx, field, mesh, points)
+
+            def refine_of(v, r, e, f, budget):
+                return refine_coverage(
+                    v,
+                    r,
+                    e,
+                    f,
+                    balls,
+                    budget,
+                    cfg.coverage_tolerance,
+                    cfg.coverage_spacing,
+                    cfg.coverage_overshoot,
+                    cfg.coverage_rounds,
+                )
 
         mat, stats = simplified_sheet(
             ctx.load("covering_grid"),
@@ -123,7 +169,23 @@ class Sheet(Stage):
             tips=tips,
             tip_reach=cfg.tip_reach,
             centre_of=centre_of,
+            refine_of=refine_of,
+            refine_vertices=cfg.coverage_vertices,
         )
+        c = stats.get("coverage")
+        if c and "shortfall_before" in c:
+            ctx.log.info(
+                "coverage: %d vertices added in %d rounds; the surface outside the envelope by %.2e on average "
+                "(was %.2e), at most %.2e (was %.2e)",
+                c["added"],
+                c["rounds"],
+                c["shortfall_after"]["mean"],
+                c["shortfall_before"]["mean"],
+                c["shortfall_after"]["max"],
+                c["shortfall_before"]["max"],
+            )
+        elif c is not None:
+            ctx.log.info("coverage: nothing added (no room left within target_vertices)")
         v = len(mat.vertices)
         stats["compact"] = not cfg.target_vertices or v <= cfg.compact_slack * cfg.target_vertices
         if not stats["compact"]:

@@ -1,0 +1,276 @@
+"""Coverage refinement: MAT vertices added where the MAT's envelope falls short of the surface.
+
+A MAT extracted from a covering samples the axis by the covering's own measure, not the surface's: where the
+radius is large a small step along the axis sweeps the contact points a long way over the surface, and where
+the learned q does not hold a branch or a rim (the bunny's ears, its rump) the sheet stops short. Both leave
+the surface outside the envelope (on the bunny 90% of the surface, a median 2.9e-3 out). The data say where
+the axis is there: the medial ball behind each surface sample (``inward_medial_radii``). Greedily, from the
+sample farthest outside the envelope, such centres are inserted into the mesh, each splitting the face (or the
+edge) nearest to it: one vertex in a face's interior, three edges, two faces more; on an edge, as many faces
+more as the edge had; either way V - E + F, and the homotopy type, stay. Rounds repeat until the envelope
+reaches every sample within ``tolerance`` or the vertex budget is spent, as Coverage Axis chooses balls by the
+surface they cover (Dou et al. 2022), here on top of the sheet's topology."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass
+class SurfaceBalls:
+    """The data's medial ball behind each surface sample, and the distance to the data they were measured with."""
+
+    samples: np.ndarray  # (N, 3)
+    centres: np.ndarray  # (N, 3)
+    radii: np.ndarray  # (N,)
+    distance: Callable  # distance(q) -> (d, closest point)
+
+
+def surface_balls(
+    points: np.ndarray,
+    outward: np.ndarray | None,
+    mesh: tuple[np.ndarray, np.ndarray] | None = None,
+    is_inside=None,
+) -> SurfaceBalls:
+    """The medial ball behind each surface point, centred at ``points - r * n``. On a ``mesh``, n are the
+    ``outward`` normals (PCA's when None) turned by the winding number and smoothed over the facets, and r is
+    measured to the mesh (``mesh_ray_normals``: the supervision's rays); else n is ``outward`` (a cloud's caller
+    passes the learned sdf's gradient) and r is measured to the points. Kept: balls wider than the test's
+    tolerance whose centre, with ``is_inside(q) -> bool``, lies inside."""
+    from qmdf.geometry.medial_radius import inward_medial_radii, mesh_outward_normals, mesh_ray_normals
+    from qmdf.medial.radii import data_distance
+
+    points = np.asarray(points, np.float64)
+    distance, tol = data_distance(mesh, None if mesh is not None else points)
+    if mesh is not None:
+        outward, _ = mesh_outward_normals(points, outward, *mesh)
+        outward, tol = mesh_ray_normals(points, outward, *mesh)
+    elif outward is None:
+        raise ValueError("the balls behind a cloud's points need their outward normals")
+    n = outward / np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
+    r = inward_medial_radii(points, n, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=16)
+    centres = points - r[:, None] * n
+    keep = r > tol
+    if is_inside is not None and keep.any():
+        keep[keep] = np.asarray(is_inside(centres[keep]), bool)
+    return SurfaceBalls(points[keep], centres[keep], r[keep], distance)
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(P, E) distances from points to segments."""
+    ab = b - a
+    t = np.einsum("pek,ek->pe", p[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-30)
+    t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=2)
+
+
+def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of points ``p`` (K, 3) in their triangles ``tri`` (K, 3, 3) (least squares)."""
+    e1, e2, w = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], p - tri[:, 0]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
+    det = np.maximum(d11 * d22 - d12 * d12, 1e-30)
+    b1 = (d22 * w1 - d12 * w2) / det
+    b2 = (d11 * w2 - d12 * w1) / det
+    return np.column_stack([1 - b1 - b2, b1, b2])
+
+
+def _picks(samples: np.ndarray, shortfall: np.ndarray, radii: np.ndarray, tolerance: float, spacing: float, n: int):
+    """Up to ``n`` samples outside the envelope by more than ``tolerance``, farthest first, none within
+    max(spacing, r / 2) of one taken before (the ball it brings covers about that much of the surface)."""
+    from scipy.spatial import cKDTree
+
+    order = np.argsort(-shortfall, kind="stable")
+    order = order[shortfall[order] > tolerance]
+    if not len(order) or n <= 0:
+        return np.zeros(0, np.int64)
+    tree = cKDTree(samples)
+    blocked = np.zeros(len(samples), bool)
+    out = []
+    for i in order:
+        if blocked[i]:
+            continue
+        out.append(i)
+        if len(out) >= n:
+            break
+        blocked[tree.query_ball_point(samples[i], max(spacing, 0.5 * radii[i]))] = True
+    return np.array(out, np.int64)
+
+
+def _insert(v, r, lone, faces, points, point_radii, protrudes):
+    """Each point inserted by splitting its nearest face (in the interior; on the edge when it lands within a
+    fifth of the way from one) or nearest lone edge, unless ``protrudes(points, radii, corners) -> bool mask``
+    says so; one insertion per face and edge per call. Returns the new (v, r, lone, faces), how many were
+    inserted, and a mask of the points deferred because their face or edge was split already."""
+    import igl
+
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    lone = np.asarray(lone, np.int64).reshape(-1, 2)
+    near_face = np.full(len(points), -1)
+    face_d = np.full(len(points), np.inf)
+    foot = np.zeros((len(points), 3))
+    if len(faces):
+        sq, near_face, foot = igl.point_mesh_squared_distance(points, v, faces)
+        face_d = np.sqrt(np.maximum(sq, 0.0))
+    near_edge = np.full(len(points), -1)
+    edge_d = np.full(len(points), np.inf)
+    if len(lone):
+        d = _segment_distance(points, v[lone[:, 0]], v[lone[:, 1]])
+        near_edge = d.argmin(1)
+        edge_d = d[np.arange(len(points)), near_edge]
+    edge_faces: dict[tuple[int, int], list[int]] = {}
+    for k, f in enumerate(faces):
+        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            edge_faces.setdefault((min(a, b), max(a, b)), []).append(k)
+    bary = _barycentric(foot, v[faces[np.maximum(near_face, 0)]]) if len(faces) else np.zeros((len(points), 3))
+    # each point's plan: the lone edge it splits, or the faces it splits (with the split face edge, if any)
+    plans, corners = [], []
+    for k in range(len(points)):
+        if edge_d[k] < face_d[k]:
+            plans.append(("edge", int(near_edge[k]), None))
+            corners.append(lone[near_edge[k]])
+        elif near_face[k] >= 0:
+            a, b, c = (int(w) for w in faces[near_face[k]])
+            low = int(np.argmin(bary[k]))
+            if bary[k, low] < 0.2:  # near the edge opposite corner ``low``: split that edge in all its faces
+                p, q = (b, c) if low == 0 else (c, a) if low == 1 else (a, b)
+                around = edge_faces[(min(p, q), max(p, q))]
+                plans.append(("faces", around, (p, q)))
+                corners.append(np.unique(faces[around]))
+            else:
+                plans.append(("faces", [int(near_face[k])], None))
+                corners.append(faces[near_face[k]])
+        else:
+            plans.append(None)
+            corners.append(np.zeros(0, np.int64))
+    refused = protrudes(points, point_radii, corners)
+    face_used = np.zeros(len(faces), bool)
+    lone_used = np.zeros(len(lone), bool)
+    new_v, new_r, new_faces, new_lone = [], [], [], []
+    drop_faces, drop_lone = [], []
+    deferred = np.zeros(len(points), bool)
+    n = len(v)
+    for k, plan in enumerate(plans):
+        if plan is None or refused[k]:
+            continue
+        idx = n + len(new_v)
+        kind, target, split = plan
+        if kind == "edge":
+            if lone_used[target]:
+                deferred[k] = True
+                continue
+            lone_used[target] = True
+            drop_lone.append(target)
+            new_lone += [[lone[target, 0], idx], [idx, lone[target, 1]]]
+        else:
+            if face_used[target].any():
+                deferred[k] = True
+                continue
+            face_used[target] = True
+            drop_faces += target
+            for g in target:
+                x, y, z = (int(w) for w in faces[g])
+                if split is None:
+                    new_faces += [[x, y, idx], [y, z, idx], [z, x, idx]]
+                    continue
+                # the face with its split edge's ends in order, then the third corner
+                for s_, t_, o in ((x, y, z), (y, z, x), (z, x, y)):
+                    if {s_, t_} == set(split):
+                        new_faces += [[s_, idx, o], [idx, t_, o]]
+        new_v.append(points[k])
+        new_r.append(point_radii[k])
+    if not new_v:
+        return v, r, lone, faces, 0, deferred
+    keep_f = np.ones(len(faces), bool)
+    keep_f[drop_faces] = False
+    keep_e = np.ones(len(lone), bool)
+    keep_e[drop_lone] = False
+    faces = np.concatenate([faces[keep_f], np.array(new_faces, np.int64).reshape(-1, 3)])
+    lone = np.concatenate([lone[keep_e], np.array(new_lone, np.int64).reshape(-1, 2)])
+    return np.vstack([v, new_v]), np.concatenate([r, new_r]), lone, faces, len(new_v), deferred
+
+
+def _protrusion_test(v: np.ndarray, r: np.ndarray, distance, overshoot: float):
+    """protrudes(points, radii, corners) -> mask: whether a ball on an edge from a new vertex (point, radius) to
+    one of its ``corners`` (at 1/4, 1/2, 3/4, radius interpolated) reaches out of the data by more than
+    ``overshoot``; one distance query for all."""
+    t = np.array([0.25, 0.5, 0.75])
+
+    def protrudes(points, radii, corners):
+        owner = np.repeat(np.arange(len(points)), [3 * len(c) for c in corners])
+        if not len(owner):
+            return np.zeros(len(points), bool)
+        ends = np.concatenate([np.repeat(c, 3) for c in corners])
+        tt = np.concatenate([np.tile(t, len(c)) for c in corners])
+        p = (1 - tt)[:, None] * v[ends] + tt[:, None] * points[owner]
+        rho = (1 - tt) * r[ends] + tt * radii[owner]
+        excess = np.full(len(points), -np.inf)
+        np.maximum.at(excess, owner, rho - distance(p)[0])
+        return excess > overshoot
+
+    return protrudes
+
+
+def refine_coverage(
+    vertices: np.ndarray,
+    radii: np.ndarray,
+    edges: np.ndarray,
+    faces: np.ndarray,
+    balls: SurfaceBalls,
+    max_added: int,
+    tolerance: float = 1e-3,
+    spacing: float = 0.01,
+    overshoot: float = 5e-3,
+    max_rounds: int = 10,
+):
+    """Up to ``max_added`` of the ``balls``' centres inserted into the medial mesh (``vertices``, ``radii``, lone
+    ``edges``, ``faces``) where the envelope falls short of their samples by more than ``tolerance``, the worst
+    first, then, while the budget lasts, by less (the level halves when none is left above it, down to an eighth
+    of ``tolerance``), none within max(``spacing``, r / 2) of another in a round (see the module doc). An
+    insertion whose balls along a new edge (interpolated at 1/4, 1/2, 3/4) reach out of the data by more than
+    ``overshoot`` is refused: a spike from a face to a centre far off it (a branch the sheet lacks) bulges out
+    of the shape. Returns (vertices, radii, lone edges, faces, stats)."""
+    from qmdf.geometry.envelope import EnvelopeUnion
+
+    v, r = np.asarray(vertices, np.float64), np.asarray(radii, np.float64)
+    e, f = np.asarray(edges, np.int64).reshape(-1, 2), np.asarray(faces, np.int64).reshape(-1, 3)
+
+    samples = balls.samples
+
+    def shortfall():
+        return EnvelopeUnion(v, r, e, f).sdf(samples)
+
+    def summary(d):
+        out = np.maximum(d, 0.0)
+        return {"mean": float(out.mean()), "p99": float(np.quantile(out, 0.99)), "max": float(out.max())}
+
+    stats = {"samples": int(len(samples)), "added": 0, "rounds": 0}
+    if not len(samples) or max_added <= 0 or not (len(f) or len(e)):
+        return v, r, e, f, stats
+    d = shortfall()
+    stats["shortfall_before"] = summary(d)
+    spent = np.zeros(len(samples), bool)
+    # every gap above ``tolerance`` first (the worst first), then, while the budget lasts, the smaller ones: the
+    # level halves whenever nothing is left above it, down to an eighth of ``tolerance``
+    level = tolerance
+    while stats["rounds"] < max_rounds and stats["added"] < max_added:
+        picks = _picks(samples, np.where(spent, -np.inf, d), balls.radii, level, spacing, max_added - stats["added"])
+        if not len(picks):
+            if level < tolerance / 7.9:
+                break
+            level *= 0.5
+            continue
+        v, r, e, f, added, deferred = _insert(
+            v, r, e, f, balls.centres[picks], balls.radii[picks], _protrusion_test(v, r, balls.distance, overshoot)
+        )
+        # a ball is offered once (where it did not cover its sample it would not again), unless its face was taken
+        spent[picks[~deferred]] = True  # so this loop ends: each pass spends picks or halves the level
+        if added:
+            stats["added"] += added
+            stats["rounds"] += 1
+            d = shortfall()
+    stats["shortfall_after"] = summary(d)
+    return v, r, e, f, stats

@@ -1,0 +1,123 @@
+"""medial.coverage: balls added where the envelope falls short of the surface, against the ellipsoid's exact axis,
+and the insertions' topology by counting."""
+
+import numpy as np
+from mats import ellipsoid_mat
+
+from qmdf.fields.analytic import EllipsoidField
+from qmdf.geometry.envelope import EnvelopeUnion
+from qmdf.geometry.metrics import euler_medial_mesh
+from qmdf.geometry.sampling import sample_surface
+from qmdf.geometry.shapes import get_shape
+from qmdf.medial.coverage import SurfaceBalls, _insert, refine_coverage, surface_balls
+
+
+def _ellipsoid_data(count=6000):
+    mesh = get_shape("ellipsoid").mesh(96)
+    mesh = (np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    samples = sample_surface(*mesh, count, np.random.default_rng(0))
+    return mesh, samples
+
+
+def _short_disc(scale=0.7):
+    """The ellipsoid's medial disc shrunk toward its centre, with the exact radii where its vertices land: a MAT
+    on the axis that stops short of the rim, as a learned sheet does."""
+    field = EllipsoidField()
+    mat = ellipsoid_mat(rings=8, sectors=24)
+    v = mat.vertices * scale
+    return field, v, -field.sdf(v), mat.faces
+
+
+def test_surface_balls_of_a_mesh_are_the_exact_medial_balls():
+    field = EllipsoidField()
+    mesh, samples = _ellipsoid_data(3000)
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    assert len(balls.samples) > 0.95 * len(samples.points)
+    # the centres lie on the disc, with its radius (the mesh's facets: about 1e-3 at this resolution)
+    assert np.median(field.axis_distance(balls.centres)) < 2e-3
+    assert np.median(np.abs(balls.radii - field.axis_radius(balls.centres))) < 2e-3
+    # each ball touches its own sample
+    assert np.allclose(np.linalg.norm(balls.samples - balls.centres, axis=1), balls.radii)
+
+
+def test_a_disc_short_of_the_rim_is_extended_onto_the_axis_with_its_topology():
+    field, v, r, faces = _short_disc()
+    mesh, samples = _ellipsoid_data()
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    before = EnvelopeUnion(v, r, np.zeros((0, 2), int), faces).sdf(balls.samples)
+    assert before.max() > 0.03  # the tips of the long axis are far outside
+    v2, r2, e2, f2, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 400, tolerance=2e-3)
+    after = EnvelopeUnion(v2, r2, e2, f2).sdf(balls.samples)
+    assert stats["added"] == len(v2) - len(v) and 0 < stats["added"] <= 400
+    assert after.max() < 0.25 * before.max() and np.mean(np.maximum(after, 0)) < 0.1 * np.mean(np.maximum(before, 0))
+    assert np.isclose(stats["shortfall_after"]["max"], max(after.max(), 0.0))
+    # what was added lies on the true axis with its true radius, and the disc is still a disc
+    new = np.arange(len(v), len(v2))
+    assert np.quantile(field.axis_distance(v2[new]), 0.9) < 3e-3
+    assert np.quantile(np.abs(r2[new] - field.axis_radius(v2[new])), 0.9) < 3e-3
+    assert euler_medial_mesh(len(v2), e2, f2) == euler_medial_mesh(len(v), np.zeros((0, 2), int), faces) == 1
+    assert set(np.unique(f2)) == set(range(len(v2)))  # every added vertex is in a face
+
+
+def test_a_covered_mat_gets_nothing_and_the_budget_holds():
+    field, v, r, faces = _short_disc(1.0)
+    mesh, samples = _ellipsoid_data()
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    # the exact disc: its envelope is the ellipsoid up to the mesh's facets and the disc's own triangles (3.3e-3)
+    _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 100, tolerance=0.03)
+    assert stats["added"] == 0 and stats["shortfall_before"]["max"] < 0.03 / 8
+    # below the tolerance, what is left of the budget goes to the smaller gaps (down to an eighth of it)
+    _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 100, tolerance=0.01)
+    assert stats["added"] > 0 and stats["shortfall_after"]["max"] < stats["shortfall_before"]["max"]
+    _, short_v, short_r, short_faces = _short_disc()
+    stats = refine_coverage(short_v, short_r, np.zeros((0, 2), int), short_faces, balls, 7, tolerance=1e-3)[4]
+    assert stats["added"] == 7
+
+
+def _never(points, *_):
+    return np.zeros(len(points), bool)
+
+
+def test_insertions_keep_the_euler_characteristic_of_faces_seams_and_lone_edges():
+    # three triangles on one seam edge (0, 1), a free triangle, and a lone edge
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 1], [3, 0, 0], [4, 0, 0], [3, 1, 0]], float)
+    faces = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [5, 6, 7]])
+    lone = np.array([[2, 5]])
+    r = np.full(len(v), 0.1)
+    chi = euler_medial_mesh(len(v), lone, faces)
+    points = np.array(
+        [
+            [0.5, 0.02, 0.0],  # on the seam edge: split in all three faces
+            [3.3, 0.3, 0.01],  # inside the free triangle
+            [1.75, 0.5, 0.02],  # beside the lone edge
+            [3.31, 0.3, 0.0],  # the free triangle again: waits for the next round
+        ]
+    )
+    v2, r2, e2, f2, added, deferred = _insert(v, r, lone, faces, points, np.full(4, 0.1), _never)
+    assert added == 3 and deferred.tolist() == [False, False, False, True]
+    assert euler_medial_mesh(len(v2), e2, f2) == chi
+    assert len(f2) == len(faces) + 3 + 2 and len(e2) == 2
+    seam_split = np.flatnonzero((f2 == 8).any(1))
+    assert len(seam_split) == 6  # each of the seam's three faces in two
+    # the faces keep their orientation: the split faces' normals agree with their parents'
+    n = np.cross(v2[f2[:, 1]] - v2[f2[:, 0]], v2[f2[:, 2]] - v2[f2[:, 0]])
+    assert np.all(n[(f2 == 9).any(1)][:, 2] > 0)
+
+
+def test_a_spike_out_of_the_shape_is_refused():
+    """A centre far from its nearest face on a concave axis: the balls on the new edges would leave the data."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    r = np.full(3, 0.1)
+    faces = np.array([[0, 1, 2]])
+    far = np.array([[0.3, 0.3, 0.5]])
+
+    def distance(q):  # a slab |z| < 0.1 around the triangle's plane: the spike's balls poke out of it
+        d = 0.1 - np.abs(q[:, 2])
+        return np.maximum(d, 0.0), q
+
+    balls = SurfaceBalls(np.array([[0.3, 0.3, 0.6]]), far, np.array([0.1]), distance)
+    _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 5, overshoot=5e-3)
+    assert stats["added"] == 0
+    loose = SurfaceBalls(balls.samples, far, balls.radii, lambda q: (np.full(len(q), 1.0), q))
+    _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, loose, 5, overshoot=5e-3)
+    assert stats["added"] == 1  # once: the same ball is never offered twice
