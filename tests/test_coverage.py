@@ -121,3 +121,22 @@ def test_a_spike_out_of_the_shape_is_refused():
     loose = SurfaceBalls(balls.samples, far, balls.radii, lambda q: (np.full(len(q), 1.0), q))
     _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, loose, 5, overshoot=5e-3)
     assert stats["added"] == 1  # once: the same ball is never offered twice
+
+
+def test_a_branch_the_mesh_lacks_grows_as_a_dangling_edge():
+    """Where splitting the nearest face would bulge out, but the cone from the nearest vertex stays inside (a
+    tube leaving the sheet there), the ball hangs on a lone edge: V and E grow by one, chi stays."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    r = np.full(3, 0.1)
+    faces = np.array([[0, 1, 2]])
+    centre = np.array([[-0.3, -0.3, 0.0]])
+
+    def distance(q):  # inside only around the tube from vertex 0 toward the centre
+        tube = (q[:, 0] <= 0.05) & (q[:, 1] <= 0.05)
+        return np.where(tube, 1.0, 0.0), q
+
+    balls = SurfaceBalls(centre + [[0.0, 0.0, 0.1]], centre, np.array([0.1]), distance)
+    v2, r2, e2, f2, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 5)
+    assert stats["added"] == 1
+    assert e2.tolist() == [[0, 3]] and np.array_equal(f2, faces)
+    assert euler_medial_mesh(len(v2), e2, f2) == 1

@@ -103,7 +103,8 @@ def _picks(samples: np.ndarray, shortfall: np.ndarray, radii: np.ndarray, tolera
 def _insert(v, r, lone, faces, points, point_radii, protrudes):
     """Each point inserted by splitting its nearest face (in the interior; on the edge when it lands within a
     fifth of the way from one) or nearest lone edge, unless ``protrudes(points, radii, corners) -> bool mask``
-    says so; one insertion per face and edge per call. Returns the new (v, r, lone, faces), how many were
+    says so, and then as a dangling edge from the nearest vertex unless that protrudes too; one split per face
+    and edge per call. Returns the new (v, r, lone, faces), how many were
     inserted, and a mask of the points deferred because their face or edge was split already."""
     import igl
 
@@ -147,6 +148,12 @@ def _insert(v, r, lone, faces, points, point_radii, protrudes):
             plans.append(None)
             corners.append(np.zeros(0, np.int64))
     refused = protrudes(points, point_radii, corners)
+    # where the split would bulge out (a branch the mesh lacks: the teacup's handle, an ear's tip), a dangling
+    # lone edge from the nearest vertex instead (V and E grow by one), if its cone stays inside
+    from scipy.spatial import cKDTree
+
+    nearest = cKDTree(v).query(points)[1]
+    pendant_refused = protrudes(points, point_radii, [np.array([u]) for u in nearest])
     face_used = np.zeros(len(faces), bool)
     lone_used = np.zeros(len(lone), bool)
     new_v, new_r, new_faces, new_lone = [], [], [], []
@@ -154,11 +161,13 @@ def _insert(v, r, lone, faces, points, point_radii, protrudes):
     deferred = np.zeros(len(points), bool)
     n = len(v)
     for k, plan in enumerate(plans):
-        if plan is None or refused[k]:
+        if plan is None or (refused[k] and pendant_refused[k]):
             continue
         idx = n + len(new_v)
-        kind, target, split = plan
-        if kind == "edge":
+        kind, target, split = plan if not refused[k] else ("pendant", int(nearest[k]), None)
+        if kind == "pendant":
+            new_lone.append([target, idx])
+        elif kind == "edge":
             if lone_used[target]:
                 deferred[k] = True
                 continue
