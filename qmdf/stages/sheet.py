@@ -85,8 +85,8 @@ class SheetConfig:
         1000,
         ge=0,
         doc="with radius=data: after centring, up to this many vertices added where the envelope falls short of "
-        "the surface, each the data's medial ball behind the sample farthest out (medial.coverage); the "
-        "simplification leaves room for them within target_vertices. 0: none",
+        "the surface, each the data's medial ball behind the sample farthest out (medial.coverage); a second "
+        "simplification, those fixed, brings the sheet back to target_vertices. 0: none",
     )
     coverage_tolerance: float = param(
         1e-3,
