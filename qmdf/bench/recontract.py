@@ -83,6 +83,14 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     radius, centre = export.get("radius", "data"), bool(export.get("centre", True))
     mesh, points = _input_data(run_dir, stages, last["index"]) if radius == "data" else (None, None)
     mat = membrane_to_mat(surface_mesh(x, faces), field, radius, mesh, points, centre=centre)
+    budget = int(export.get("coverage_vertices", 1000))
+    if radius == "data" and budget:  # export's coverage of a membrane MAT
+        from qmdf.medial.coverage import cover_mat
+        from qmdf.stages.inputs import surface_balls_of
+
+        sampled = _latest_before(stages, "points", last["index"])
+        load = (lambda: POINTS.load(run_dir / sampled)) if sampled else None
+        mat, _ = cover_mat(mat, surface_balls_of(field, mesh, points, load), budget)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)
     resolution = int(config.get("export", {}).get("reconstruction_resolution", 128))

@@ -7,7 +7,8 @@ the surface outside the envelope (on the bunny 90% of the surface, a median 2.9e
 the axis is there: the medial ball behind each surface sample (``inward_medial_radii``). Greedily, from the
 sample farthest outside the envelope, such centres are inserted into the mesh, each splitting the face (or the
 edge) nearest to it: one vertex in a face's interior, three edges, two faces more; on an edge, as many faces
-more as the edge had; either way V - E + F, and the homotopy type, stay. Rounds repeat until the envelope
+more as the edge had; where that would bulge out of the shape (a branch the mesh lacks), a dangling edge from
+the nearest vertex; each way V - E + F, and the homotopy type, stay. Rounds repeat until the envelope
 reaches every sample within ``tolerance`` or the vertex budget is spent, as Coverage Axis chooses balls by the
 surface they cover (Dou et al. 2022), here on top of the sheet's topology."""
 
@@ -288,3 +289,13 @@ def refine_coverage(
             d = shortfall()
     stats["shortfall_after"] = summary(d)
     return v, r, e, f, stats
+
+
+def cover_mat(mat, balls: SurfaceBalls, max_added: int, **settings):
+    """``refine_coverage`` on a ``MedialMesh``: (the covered ``MedialMesh``, stats)."""
+    from qmdf.geometry.ma_format import MedialMesh
+
+    v, r, e, f, stats = refine_coverage(
+        mat.vertices, mat.radii, mat.lone_edges(), mat.faces, balls, max_added, **settings
+    )
+    return MedialMesh(v, r, e, f).with_face_edges(), stats

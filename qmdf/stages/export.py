@@ -128,13 +128,10 @@ class Export(Stage):
 
     @staticmethod
     def _covered(ctx: StageContext, mat, mesh, points):
-        from qmdf.geometry.ma_format import MedialMesh
-        from qmdf.medial.coverage import refine_coverage
+        from qmdf.medial.coverage import cover_mat
 
         balls = input_surface_balls(ctx, ctx.load("field"), mesh, points)
-        v, r, e, f, stats = refine_coverage(
-            mat.vertices, mat.radii, mat.lone_edges(), mat.faces, balls, ctx.cfg.coverage_vertices
-        )
+        mat, stats = cover_mat(mat, balls, ctx.cfg.coverage_vertices)
         ctx.log.info(
             "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "
             "(was %.2e)",
@@ -142,4 +139,4 @@ class Export(Stage):
             stats.get("shortfall_after", {}).get("mean", float("nan")),
             stats.get("shortfall_before", {}).get("mean", float("nan")),
         )
-        return MedialMesh(v, r, e, f).with_face_edges()
+        return mat

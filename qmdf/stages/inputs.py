@@ -26,15 +26,20 @@ def radius_data(info: dict, load_surface, load_points):
 
 
 def input_surface_balls(ctx: StageContext, field, mesh, points):
+    """``surface_balls_of`` on a stage's inputs."""
+    return surface_balls_of(field, mesh, points, (lambda: ctx.load("points")) if ctx.has("points") else None)
+
+
+def surface_balls_of(field, mesh, points, load_samples):
     """The data's medial balls behind the surface samples (``medial.coverage.surface_balls``): on a mesh (``mesh``
-    from ``input_data``) the run's sampled points, their normals turned by the winding number; on a cloud
-    (``points``) the input points with the learned sdf's gradient as normals, centres kept where the field says
-    inside."""
+    from ``input_data``) the run's sampled points (``load_samples()``; None: 20k new ones), their normals turned
+    by the winding number; on a cloud (``points``) the input points with the learned sdf's gradient as normals,
+    centres kept where the field says inside."""
     from qmdf.medial.coverage import surface_balls
 
     if mesh is not None:
-        if ctx.has("points"):
-            samples = ctx.load("points")
+        if load_samples is not None:
+            samples = load_samples()
         else:
             from qmdf.geometry.sampling import sample_surface
 
