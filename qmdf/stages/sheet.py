@@ -185,7 +185,7 @@ class Sheet(Stage):
                 c["shortfall_before"]["max"],
             )
         elif c is not None:
-            ctx.log.info("coverage: nothing added (no room left within target_vertices)")
+            ctx.log.info("coverage: nothing added (%s)", c.get("skipped", "no budget, samples or edges"))
         v = len(mat.vertices)
         stats["compact"] = not cfg.target_vertices or v <= cfg.compact_slack * cfg.target_vertices
         if not stats["compact"]:
