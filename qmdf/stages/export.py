@@ -73,16 +73,15 @@ class Export(Stage):
 
         norm = ctx.load("normalization")
         mesh, points = input_data(ctx) if ctx.cfg.radius == "data" else (None, None)
-        membrane = membrane_to_mat(
-            ctx.load("membrane"), ctx.load("field"), ctx.cfg.radius, mesh, points, centre=ctx.cfg.centre
-        )
+        field = ctx.load("field")
+        membrane = membrane_to_mat(ctx.load("membrane"), field, ctx.cfg.radius, mesh, points, centre=ctx.cfg.centre)
         ctx.save("membrane_mat", membrane)
         use_sheet = ctx.has("sheet") and (
             ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True
         )
         mat = ctx.load("sheet") if use_sheet else membrane
         if not use_sheet and ctx.cfg.radius == "data" and ctx.cfg.coverage_vertices:
-            mat = self._covered(ctx, mat, mesh, points)
+            mat = self._covered(ctx, mat, field, mesh, points)
         v, radii = mat.vertices, mat.radii
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
@@ -127,10 +126,10 @@ class Export(Stage):
         )
 
     @staticmethod
-    def _covered(ctx: StageContext, mat, mesh, points):
+    def _covered(ctx: StageContext, mat, field, mesh, points):
         from qmdf.medial.coverage import cover_mat
 
-        balls = input_surface_balls(ctx, ctx.load("field"), mesh, points)
+        balls = input_surface_balls(ctx, field, mesh, points)
         mat, stats = cover_mat(mat, balls, ctx.cfg.coverage_vertices)
         ctx.log.info(
             "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "

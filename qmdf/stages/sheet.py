@@ -136,15 +136,15 @@ class Sheet(Stage):
                 return centre_on_data(x, mesh, points, learned_inside(field, mesh))
 
         if cfg.coverage_vertices and cfg.radius == "data":
-            balls = input_surface_balls(ctx, field, mesh, points)
 
             def refine_of(v, r, e, f, budget):
+                # the balls only when coverage runs (not on a sheet the simplification left above the target)
                 return refine_coverage(
                     v,
                     r,
                     e,
                     f,
-                    balls,
+                    input_surface_balls(ctx, field, mesh, points),
                     budget,
                     cfg.coverage_tolerance,
                     cfg.coverage_spacing,
