@@ -25,12 +25,9 @@ MESH_LAYERS = (
 
 
 def _display_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
-    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    if len(f) > DISPLAY_FACES:
-        from qmdf.medial.covering import decimate
+    from qmdf.viz import decimated_for_display
 
-        small = decimate(mesh, DISPLAY_FACES)
-        v, f = np.asarray(small.vertices), np.asarray(small.faces)
+    v, f = decimated_for_display(mesh.vertices, mesh.faces, DISPLAY_FACES)
     return _short(v), f
 
 

@@ -9,18 +9,25 @@ import numpy as np
 from qmdf.geometry.triangles import face_cross
 
 
+def decimated_for_display(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_faces`` faces, for drawing only: a fast quadric collapse without MeshLab's topology
+    checks (a picture needs none)."""
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
+    if len(faces) <= max_faces:
+        return vertices, faces
+    import fast_simplification
+
+    v, f = fast_simplification.simplify(vertices.astype(np.float32), faces.astype(np.int32), target_count=max_faces)
+    return np.asarray(v, np.float64), np.asarray(f, np.int64)
+
+
 def _decimated(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray | None, max_faces: int):
     """At most ``max_faces`` faces for drawing; per-vertex values follow their nearest kept vertex."""
     if len(faces) <= max_faces:
         return vertices, faces, values
-    import pymeshlab
     from scipy.spatial import cKDTree
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces))
-    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=max_faces, preservetopology=True)
-    m = ms.current_mesh()
-    v, f = m.vertex_matrix(), m.face_matrix()
+    v, f = decimated_for_display(vertices, faces, max_faces)
     if values is not None:
         _, idx = cKDTree(vertices).query(v)
         values = values[idx]

@@ -309,3 +309,27 @@ def test_the_eps_floor_is_the_axis_q_noise_plus_a_margin_of_grid_cells():
     assert eps_floor({"p99": 0.002, "p999": 0.004}, 256, 0.55) == pytest.approx(0.002 + 2 * cell)
     # a finer grid needs less margin
     assert eps_floor({"p99": 0.002}, 512, 0.55) < eps_floor({"p99": 0.002}, 256, 0.55)
+
+
+def test_the_narrow_band_gives_the_full_grids_signs_and_crossings():
+    """Nodes never evaluated take the sign of the unrefined cell that holds them: every node's sign, and so
+    the marching-cubes surface, is the full evaluation's (a thin torus, spheres, a grid whose sides are no
+    multiple of the coarse step)."""
+    from qmdf.geometry.grid import GridLevelSet, grid_axes, narrow_band_level_set
+
+    centres = np.array([[0.2, 0.1, 0.0], [-0.25, -0.1, 0.1], [0.0, 0.3, -0.2]])
+    radii = np.array([0.12, 0.07, 0.05])
+
+    def sdf(p, band=None):
+        spheres = (np.linalg.norm(p[:, None] - centres[None], axis=2) - radii).min(1)
+        ring = np.hypot(np.hypot(p[:, 0], p[:, 1]) - 0.3, p[:, 2] - 0.05) - 0.012  # thinner than 2 cells
+        return np.minimum(spheres, ring)
+
+    lo, hi = np.array([-0.45, -0.4, -0.3]), np.array([0.45, 0.45, 0.3])
+    banded = narrow_band_level_set(sdf, lo, hi, 61, coarse_step=8)
+    axes, spacing = grid_axes(lo, hi, 61)
+    full = sdf(np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)).reshape(banded.values.shape)
+    assert banded.evaluated < 0.5 * full.size
+    assert np.array_equal(banded.values < 0, full < 0)
+    a, b = banded.mesh(), GridLevelSet(full.astype(np.float32), banded.lo, spacing, full.size).mesh()
+    assert len(a.faces) == len(b.faces) and np.allclose(np.sort(a.vertices, 0), np.sort(b.vertices, 0), atol=1e-9)

@@ -161,3 +161,78 @@ def test_the_collapse_takes_every_kth_node_within_the_node_budget():
     assert node_stride(inside, 8000) == 1
     assert node_stride(inside, 7999) == 2 and node_stride(inside, 1000) == 2
     assert node_stride(inside, 999) == 3
+
+
+def test_a_collapse_after_softening_starts_only_from_the_softened_cells():
+    """After a run, only a pair whose coface was softened can have become collapsible: seeding the heap with
+    the softened cells' faces leaves what a scan of every cell leaves."""
+    from qmdf.medial.thinning import Collapse
+
+    q = np.abs(Z) + np.maximum(R - 0.4, 0)
+    results = []
+    for full_scan in (False, True):
+        col = Collapse(q < 0.06, q, 0.03)
+        cx = col.run()
+        rng = np.random.default_rng(0)
+        col.soften(cx, rng.random(len(cx.squares)) < 0.3, rng.random(len(cx.edges)) < 0.3)
+        if full_scan:
+            col.softened = None
+        results.append(col.run())
+    seeded, scanned = results
+    assert len(seeded.squares) < len(cx.squares)  # the softening released something
+    for name in ("nodes", "edges", "squares"):
+        assert np.array_equal(getattr(seeded, name), getattr(scanned, name))
+
+
+def test_covered_squares_against_the_plain_greedy_loop():
+    from scipy.spatial import cKDTree
+
+    from qmdf.medial.sheet import _covered_squares
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 1, (400, 3))
+    squares = rng.integers(0, 400, (300, 4))
+    proper = rng.random(300) < 0.8
+    node_q = rng.random(400)
+    got = _covered_squares(x, squares, proper, node_q, 0.08)
+    # the rule spelled out: by increasing q, a square is covered when a square taken before lies within radius
+    idx = np.flatnonzero(proper)
+    centre = x[squares[idx]].mean(1)
+    near = cKDTree(centre).query_ball_point(centre, 0.08)
+    taken, want = np.zeros(len(idx), bool), np.zeros(300, bool)
+    for k in np.argsort(node_q[squares[idx]].mean(1), kind="stable"):
+        if any(taken[j] for j in near[k] if j != k):
+            want[idx[k]] = True
+        else:
+            taken[k] = True
+    assert 0 < want.sum() < proper.sum() and np.array_equal(got, want)
+
+
+def test_redundant_edges_against_the_plain_loops():
+    from scipy.spatial import cKDTree
+
+    from qmdf.geometry.metrics import edges_off_polygons
+    from qmdf.medial.sheet import _redundant_edges
+
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0, 1, (300, 3))
+    edges = np.unique(np.sort(rng.integers(0, 300, (500, 2)), axis=1), axis=0)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    squares = rng.integers(0, 300, (40, 4))
+    node_q = rng.random(300)
+    short, reach = 0.05, 0.09
+    got = _redundant_edges(x, edges, squares, node_q, short, reach)
+    # each rule spelled out, edge by edge
+    lone = edges_off_polygons(edges, squares)
+    mid, eq = x[edges].mean(1), node_q[edges].mean(1)
+    want = lone & (np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) < short)
+    want |= lone & (cKDTree(x[squares].mean(1)).query(mid)[0] < reach)
+    for i in np.flatnonzero(lone & ~want):
+        near = cKDTree(mid).query_ball_point(mid[i], 0.5 * reach)
+        want[i] = any(j != i and (eq[j] < eq[i] or (eq[j] == eq[i] and j < i)) for j in near)
+    degree = np.bincount(edges.ravel(), minlength=len(x))
+    for i in np.flatnonzero(lone & ~want):
+        for v, w in ((edges[i, 0], edges[i, 1]), (edges[i, 1], edges[i, 0])):
+            near = cKDTree(x).query_ball_point(x[v], reach)
+            want[i] |= bool(degree[v] == 1 and any(u != v and u != w for u in near))
+    assert 0 < want.sum() < lone.sum() and np.array_equal(got, want)

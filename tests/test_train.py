@@ -302,3 +302,23 @@ def test_medial_levels_feed_the_grids_coarse_levels_to_mf_only():
         net.trunk.table[: levels[1]] += torch.randn_like(net.trunk.table[: levels[1]])
     sdf2, mf2 = net(x)
     assert not torch.allclose(mf1, mf2)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_compiled_grid_encoding_is_the_torch_encoding(dtype):
+    """Field queries (no autograd, CPU) take the compiled loop; it must give what the differentiable torch
+    encoding gives, on dense and hashed levels, at cell faces and beyond the grid's bound (clamped)."""
+    from qmdf.fields.backbones import Grid, GridConfig
+
+    g = Grid(GridConfig(levels=4, base_resolution=4, finest_resolution=40, log2_table_size=10)).to(dtype)
+    with torch.no_grad():
+        g.table.normal_()
+    assert bool(g.dense[0]) and not bool(g.dense[-1])
+    x = torch.rand(2000, 3, dtype=dtype) * 1.6 - 0.8
+    x[:5] = -0.6 + 1.2 * torch.tensor([0, 1, 3, 7, 40], dtype=dtype)[:, None] / 40  # faces of the finest level
+    with torch.no_grad():
+        compiled = g.encode(x)
+    reference = g.encode(x.clone().requires_grad_(True)).detach()  # autograd on: the torch path
+    assert compiled.dtype == dtype and compiled.shape == reference.shape
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    assert (compiled - reference).abs().max() < tol * max(1.0, float(reference.abs().max()))

@@ -31,10 +31,13 @@ class Field:
         net,
         normalization: Normalization | None = None,
         meta: dict | None = None,
-        chunk: int = 1 << 16,
+        chunk: int | None = None,
         device: str | None = None,
     ):
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        # on the CPU, chunks of 16k points keep the grid encoding's (N, levels, 8, features) gathers in cache:
+        # 1.6x faster than 64k (teacup field, 200k points, 2 cores: 0.61 s against 1.00 s)
+        chunk = chunk or (1 << 18 if self.device.type == "cuda" else 1 << 14)
         self.net = net.to(self.device).eval()
         self.normalization = normalization or Normalization.identity()
         self.meta = meta or {}

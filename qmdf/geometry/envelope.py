@@ -9,9 +9,10 @@ vectorised over pairs of points and primitives: arrays of shape (N, 3) and (N,).
 
 from __future__ import annotations
 
-import itertools
 
 import numpy as np
+
+from qmdf.geometry.metrics import edges_off_polygons
 
 _EPS = 1e-12
 
@@ -103,13 +104,15 @@ class EnvelopeUnion:
     spheres (vertices in neither). ``sdf`` is its exact signed distance outside and its exact zero set;
     inside, min over primitives bounds the depth from below (as for any union of SDFs).
 
-    Exact culling makes it fast: the vertex spheres lie inside the union, so their nearest ones (in power
-    distance) give an upper bound u(p); a primitive can only go below u if its bounding sphere (m_j, rho_j)
-    does, |p - m_j| - rho_j < u. Primitives are grouped by rho so each group's KD-tree query is tight.
+    A bounding-volume hierarchy over the primitives' bounding balls makes it fast: each point visits the
+    nearest nodes first and skips every node whose balls cannot go below its best value so far, in one
+    compiled loop (``_envelope_kernels.union_min``).
     """
 
-    def __init__(self, centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray, n_bins: int = 12):
-        from scipy.spatial import cKDTree
+    def __init__(
+        self, centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray, leaf_size: int = 4
+    ):
+        from qmdf.geometry._envelope_kernels import build_bvh
 
         self.c = np.asarray(centers, np.float64)
         self.r = np.asarray(radii, np.float64)
@@ -118,10 +121,8 @@ class EnvelopeUnion:
         faces = np.asarray(faces, np.int64).reshape(-1, 3)
         edges = np.asarray(edges, np.int64).reshape(-1, 2)
         edges = edges[edges[:, 0] != edges[:, 1]]
-        face_edges = {tuple(sorted(e)) for f in faces for e in ((f[0], f[1]), (f[1], f[2]), (f[0], f[2]))}
-        lone = np.array(
-            [e for e in {tuple(sorted(e)) for e in edges.tolist()} if e not in face_edges], np.int64
-        ).reshape(-1, 2)
+        edges = np.unique(np.sort(edges, axis=1), axis=0)
+        lone = edges[edges_off_polygons(edges, faces)]
         used = np.zeros(len(self.c), bool)
         used[faces.ravel()] = True
         used[lone.ravel()] = True
@@ -138,20 +139,7 @@ class EnvelopeUnion:
         pc = self.c[self.prims]  # (P, 3, 3)
         self.anchor = pc.mean(1)
         self.rho = (np.linalg.norm(pc - self.anchor[:, None], axis=2) + self.r[self.prims]).max(1)
-        edges_q = np.unique(np.quantile(self.rho, np.linspace(0, 1, n_bins + 1)))
-        which = np.clip(np.searchsorted(edges_q, self.rho, side="right") - 1, 0, max(len(edges_q) - 2, 0))
-        self.bins = []
-        for b in np.unique(which):
-            members = np.flatnonzero(which == b)
-            self.bins.append((members, float(self.rho[members].max()), cKDTree(self.anchor[members])))
-        # power distance |p - c|^2 - r^2 is Euclidean distance in 4D with c lifted by sqrt(R^2 - r^2)
-        big = float(self.r.max())
-        self._lift = np.sqrt(np.maximum(big * big - self.r * self.r, 0.0))
-        self._sphere_tree = cKDTree(np.column_stack([self.c, self._lift]))
-        self._extent = float(np.abs(self.c).max() + self.r.max())
-        # one primitive per vertex (any that holds it): its exact value tightens the upper bound
-        self._vertex_prim = np.full(len(self.c), -1, np.int64)
-        self._vertex_prim[self.prims[::-1].ravel()] = np.repeat(np.arange(len(self.prims))[::-1], 3)
+        self._bvh = build_bvh(self.anchor, self.rho, leaf_size)
 
     @classmethod
     def from_mat(cls, mat) -> "EnvelopeUnion":
@@ -160,23 +148,6 @@ class EnvelopeUnion:
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return (self.c - self.r[:, None]).min(0), (self.c + self.r[:, None]).max(0)
-
-    def _upper_bound(self, p: np.ndarray, k: int = 8) -> np.ndarray:
-        """min over nearby vertex spheres and one primitive through the best of them (all inside the union)."""
-        k = min(k, len(self.c))
-        _, idx = self._sphere_tree.query(np.column_stack([p, np.zeros(len(p))]), k=k)
-        idx = idx.reshape(len(p), -1)
-        vals = np.linalg.norm(p[:, None] - self.c[idx], axis=2) - self.r[idx]
-        best_v = idx[np.arange(len(p)), vals.argmin(1)]
-        prim_val, _, _ = self.eval_prims(p, self._vertex_prim[best_v])
-        return np.minimum(vals.min(1), prim_val)
-
-    def _lower_bound(self, p: np.ndarray) -> np.ndarray:
-        lb = np.full(len(p), np.inf)
-        for _, rho_max, tree in self.bins:
-            d, _ = tree.query(p, k=1)
-            lb = np.minimum(lb, d - rho_max)
-        return lb
 
     def eval_prims(self, p: np.ndarray, prim: np.ndarray):
         """(distance, foot centre, foot radius) of primitive ``prim[i]`` at point ``p[i]``."""
@@ -196,71 +167,22 @@ class EnvelopeUnion:
                 out_d[sel], out_c[sel], out_r[sel] = fn(p[sel], c[sel], r[sel])
         return out_d, out_c, out_r
 
-    def sdf(self, points: np.ndarray, band: float | None = None, chunk: int = 8192, return_argmin: bool = False):
+    def sdf(self, points: np.ndarray, band: float | None = None, return_argmin: bool = False):
         """Signed distance of ``points`` to the union. With ``band``, points provably farther than ``band``
-        from the surface get a bound of the right sign instead of the exact value (enough for meshing).
-        With ``return_argmin``, also the index of the primitive attaining the minimum (-1 where bounded)."""
-        points = np.asarray(points, np.float64)
-        out = np.empty(len(points))
+        from the surface get a bound of the right sign instead of the exact value (enough for meshing): just
+        over ``band`` outside, below ``-band`` inside. With ``return_argmin``, also the index of the primitive
+        attaining the minimum (-1 where bounded outside)."""
+        from qmdf.geometry._envelope_kernels import union_min
+
+        points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
         arg = np.full(len(points), -1, np.int64)
-        for s in range(0, len(points), chunk):
-            p = points[s : s + chunk]
-            d, a = self._sdf_chunk(p, band)
-            out[s : s + chunk], arg[s : s + chunk] = d, a
-        return (out, arg) if return_argmin else out
-
-    def _sdf_chunk(self, p: np.ndarray, band: float | None):
-        u = self._upper_bound(p)
-        best = u.copy()
-        arg = np.full(len(p), -1, np.int64)
-        todo = np.ones(len(p), bool)
-        if band is not None:
-            todo &= u >= -band  # deeper inside than band: the sign is all that matters
-            lb = np.full(len(p), -np.inf)
-            lb[todo] = self._lower_bound(p[todo])
-            far = todo & (lb > band)
-            best[far] = lb[far]  # farther outside than band
-            todo &= ~far
-        idx = np.flatnonzero(todo)
-        if len(idx) == 0:
-            return best, arg
-        pts, prims = [], []
-        pad = 1e-9 * (1.0 + self._extent)  # the bound can be attained exactly: keep it inside the query ball
-        for members, rho_max, tree in self.bins:
-            radius = u[idx] + rho_max + pad
-            ok = radius > 0
-            if not ok.any():
-                continue
-            lists = tree.query_ball_point(p[idx[ok]], radius[ok], return_sorted=False)
-            counts = np.fromiter(map(len, lists), np.int64, len(lists))
-            total = int(counts.sum())
-            if total == 0:
-                continue
-            pts.append(np.repeat(idx[ok], counts))
-            prims.append(members[np.fromiter(itertools.chain.from_iterable(lists), np.int64, total)])
-        if not pts:
-            return best, arg
-        from qmdf.geometry._envelope_kernels import min_over_pairs
-
-        # the culling keeps every primitive that can reach u, the minimiser among them; u is attained by a
-        # vertex sphere, which lies inside a primitive, so starting just above u the minimiser is recorded
-        exact = u + pad
-        min_over_pairs(
-            p,
-            np.concatenate(pts),
-            np.concatenate(prims),
-            self.prims,
-            self.kind,
-            self.c,
-            self.r,
-            self.anchor,
-            self.rho,
-            exact,
-            arg,
-        )
-        found = arg >= 0
-        best[found] = exact[found]
-        return best, arg
+        if band is None:
+            best, stop = np.full(len(points), np.inf), np.full(len(points), -np.inf)
+        else:
+            best = np.full(len(points), np.nextafter(float(band), np.inf))
+            stop = np.full(len(points), -float(band))
+        union_min(points, best, stop, arg, *self._bvh, self.prims, self.kind, self.c, self.r, self.anchor, self.rho)
+        return (best, arg) if return_argmin else best
 
     def snap(self, points: np.ndarray, argmin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Project points onto the boundary of the primitive that attains the union's minimum there (for a

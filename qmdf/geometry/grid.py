@@ -61,7 +61,9 @@ def narrow_band_level_set(
     values = np.full(shape, np.nan, np.float32)
     evaluated = 0
     known = np.zeros(shape, bool)
+    steps = []
     while True:
+        steps.append(step)
         new = nodes[~known[tuple(nodes.T)]]
         if len(new):
             pts = np.column_stack([axes[k][new[:, k]] for k in range(3)])
@@ -72,16 +74,20 @@ def narrow_band_level_set(
             break
         # cells of this lattice (origin node + step) that the level set may cross: a corner within a diagonal
         diag = float(np.linalg.norm(spacing * step))
-        origins = nodes[np.all(nodes + step <= np.array(shape) - 1 + step - 1, axis=1)]
-        origins = origins[np.all(origins < np.array(shape) - 1, axis=1)]
+        origins = nodes[np.all(nodes < np.array(shape) - 1, axis=1)]
         corners = np.minimum(origins[:, None, :] + step * _CORNERS[None], np.array(shape) - 1)
         near = (np.abs(values[tuple(corners.reshape(-1, 3).T)]).reshape(-1, 8) < diag).any(1)
         origins = origins[near]
         step //= 2
-        offsets = step * _SUB[None]
-        nodes = np.unique(np.minimum((origins[:, None, :] + offsets).reshape(-1, 3), np.array(shape) - 1), axis=0)
+        # the sub-nodes of those cells, each once: marked on a grid mask (np.unique over rows sorted
+        # lexicographically and took 8 s of the teacup's cover)
+        wanted = np.zeros(shape, bool)
+        for offset in step * _SUB:
+            sub = np.minimum(origins + offset, np.array(shape) - 1)
+            wanted[tuple(sub.T)] = True
+        nodes = np.argwhere(wanted)
     # every node never reached lies in a cell no level-set crossing can enter: give it its cell's sign
-    values = _fill_from_coarser(values, known)
+    values = _fill_from_coarser(values, known, steps)
     return GridLevelSet(values, np.array([a[0] for a in axes]), spacing, evaluated)
 
 
@@ -89,14 +95,20 @@ _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 _SUB = np.array([[i, j, k] for i in (0, 1, 2) for j in (0, 1, 2) for k in (0, 1, 2)])
 
 
-def _fill_from_coarser(values: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Fill unknown nodes with the value of the nearest known node (sign-correct for 1-Lipschitz fields)."""
-    from scipy import ndimage
-
+def _fill_from_coarser(values: np.ndarray, known: np.ndarray, steps: list[int]) -> np.ndarray:
+    """Fill each node never evaluated with the value at the origin of the finest evaluated lattice cell that
+    holds it. That cell was not refined, so no crossing enters it and every known node of its closure has the
+    sign of the whole cell (for a field that is 1-Lipschitz in grid units of the refinement test). Coarse to
+    fine, each node takes the value at its floor on each lattice where that floor was evaluated. (A Euclidean
+    distance transform for the nearest known node gave the same signs in 3 s on a 256^3 grid.)"""
     if known.all():
         return values
-    _, idx = ndimage.distance_transform_edt(~known, return_indices=True)
-    return values[tuple(idx)]
+    filled = values.copy()
+    for step in steps:
+        floor = np.ix_(*[(np.arange(n) // step) * step for n in values.shape])
+        take = ~known & known[floor]
+        filled[take] = values[floor][take]
+    return filled
 
 
 def _evaluate(field: BandedField, pts: np.ndarray, band: float, level: float, chunk: int) -> np.ndarray:

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from qmdf.geometry.metrics import edges_off_polygons
 from qmdf.medial.thinning import Collapse, CubicalComplex
@@ -110,14 +111,33 @@ def _covered_squares(
     if len(idx) < 2:
         return out
     centre = x[squares[idx]].mean(1)
-    near = cKDTree(centre).query_ball_point(centre, radius)
-    taken = np.zeros(len(idx), bool)
-    for k in np.argsort(node_q[squares[idx]].mean(1), kind="stable"):
-        if any(taken[j] for j in near[k] if j != k):
-            out[idx[k]] = True
-        else:
-            taken[k] = True
+    start, nbr = _neighbour_lists(cKDTree(centre), radius)
+    taken = _take_uncovered(np.argsort(node_q[squares[idx]].mean(1), kind="stable"), start, nbr)
+    out[idx[~taken]] = True
     return out
+
+
+def _neighbour_lists(tree, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's neighbours within ``radius`` (itself excluded) as CSR lists: start (n + 1,), neighbours."""
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    both = np.concatenate([pairs, pairs[:, ::-1]])
+    both = both[np.argsort(both[:, 0], kind="stable")]
+    start = np.searchsorted(both[:, 0], np.arange(tree.n + 1))
+    return start, both[:, 1].copy()
+
+
+@njit(cache=True)
+def _take_uncovered(order, start, nbr):
+    """In ``order``, take each item none of whose neighbours was taken before it."""
+    taken = np.zeros(len(order), np.bool_)
+    for k in order:
+        free = True
+        for m in range(start[k], start[k + 1]):
+            if taken[nbr[m]]:
+                free = False
+                break
+        taken[k] = free
+    return taken
 
 
 def _redundant_edges(
@@ -136,22 +156,34 @@ def _redundant_edges(
     length = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)
     mid = x[edges].mean(1)
     out = lone & (length < short)
-    if len(squares):
-        out |= lone & (cKDTree(x[squares].mean(1)).query(mid)[0] < reach)
-    tree = cKDTree(mid)
-    eq = node_q[edges].mean(1)
-    for i in np.flatnonzero(lone & ~out):
-        near = tree.query_ball_point(mid[i], 0.5 * reach)
-        if any(j != i and (eq[j] < eq[i] or (eq[j] == eq[i] and j < i)) for j in near):
-            out[i] = True
+    check = np.flatnonzero(lone & ~out)
+    if len(squares) and len(check):
+        out[check[cKDTree(x[squares].mean(1)).query(mid[check])[0] < reach]] = True
+    # another edge within half of reach that reads a lower q (ties: the lower index) covers this one's spot
+    check = np.flatnonzero(lone & ~out)
+    if len(check):
+        eq = node_q[edges].mean(1)
+        pairs = cKDTree(mid[check]).sparse_distance_matrix(cKDTree(mid), 0.5 * reach, output_type="ndarray")
+        i, j = check[pairs["i"]], pairs["j"]
+        lower = (j != i) & ((eq[j] < eq[i]) | ((eq[j] == eq[i]) & (j < i)))
+        out[i[lower]] = True
     # a spur: a dangling edge whose loose end lands beside a vertex other than its own neighbour
     degree = np.bincount(edges.ravel(), minlength=len(x))
-    points = cKDTree(x)
-    for i in np.flatnonzero(lone & ~out):
+    check = np.flatnonzero(lone & ~out)
+    if len(check):
+        points = cKDTree(x)
         for end, other in ((0, 1), (1, 0)):
-            v, w = edges[i, end], edges[i, other]
-            if degree[v] == 1 and any(u != v and u != w for u in points.query_ball_point(x[v], reach)):
-                out[i] = True
+            v, w = edges[check, end], edges[check, other]
+            dangling = degree[v] == 1
+            if not dangling.any():
+                continue
+            # the three nearest within reach: one that is neither v nor w exists iff any does
+            d, u = points.query(x[v[dangling]], k=min(3, len(x)), distance_upper_bound=reach)
+            u = u.reshape(len(d), -1)
+            other_near = (np.isfinite(d.reshape(len(u), -1)) & (u != v[dangling, None]) & (u != w[dangling, None])).any(
+                1
+            )
+            out[check[dangling][other_near]] = True
     return out
 
 

@@ -1,0 +1,50 @@
+"""The grid encoding's forward pass compiled, for inference on the CPU.
+
+It mirrors ``Grid.encode`` in backbones.py (the tested reference, which autograd differentiates twice for
+training): the same clamp, cells, smoothstep weights, dense and hashed indices. Torch builds the
+(N, levels, 8, 3) index and weight tensors as separate temporaries; one loop here does the same gathers
+without them, which is what the cover's and the contraction's millions of field queries cost."""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit, prange
+
+_P1, _P2 = 2654435761, 805459861  # Instant-NGP's spatial-hash primes (the first, 1, needs no product)
+
+
+@njit(cache=True)
+def _corner_cell(xk, bound, rl):
+    """The cell index along one axis and the smoothstep weight of its far corner."""
+    u = (min(max(xk, -bound), bound) + bound) / (2.0 * bound) * rl
+    c = min(math.floor(u), rl - 1)
+    t = u - c
+    return c, t * t * (3.0 - 2.0 * t)
+
+
+@njit(cache=True, parallel=True)
+def encode_grid(x, table, res, size, offset, dense, bound, out):
+    """out (N, levels * F) = the smoothstep-blended features of the 8 corners of each level's cell."""
+    n_levels, n_feat = res.shape[0], table.shape[1]
+    for n in prange(x.shape[0]):
+        for lv in range(n_levels):
+            rl = res[lv]
+            ci, wx = _corner_cell(x[n, 0], bound, rl)
+            cj, wy = _corner_cell(x[n, 1], bound, rl)
+            ck, wz = _corner_cell(x[n, 2], bound, rl)
+            stride = rl + 1
+            base = lv * n_feat
+            for f in range(n_feat):
+                out[n, base + f] = 0.0
+            for corner in range(8):
+                a, b, c = corner >> 2 & 1, corner >> 1 & 1, corner & 1
+                i, j, k = ci + a, cj + b, ck + c
+                weight = (wx if a else 1.0 - wx) * (wy if b else 1.0 - wy) * (wz if c else 1.0 - wz)
+                if dense[lv]:
+                    flat = i + stride * (j + stride * k)
+                else:
+                    flat = (i ^ (j * _P1) ^ (k * _P2)) % size[lv]
+                row = offset[lv] + flat
+                for f in range(n_feat):
+                    out[n, base + f] += weight * table[row, f]
