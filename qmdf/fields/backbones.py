@@ -141,6 +141,7 @@ class Grid(nn.Module):
         self.register_buffer("size", torch.tensor(sizes, dtype=torch.int64), persistent=False)
         self.register_buffer("offset", torch.tensor(offsets, dtype=torch.int64), persistent=False)
         self.register_buffer("dense", torch.tensor([(r + 1) ** 3 <= table for r in res]), persistent=False)
+        self.all_dense = all((r + 1) ** 3 <= table for r in res)
         self.register_buffer(
             "corners", torch.tensor([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)]), persistent=False
         )
@@ -169,12 +170,11 @@ class Grid(nn.Module):
         w1 = t * t * (3 - 2 * t)  # smoothstep: C1 across cell faces
         idx = cell.long()[:, :, None, :] + self.corners[None, None]  # (N, L, 8, 3)
         stride = (self.res_int + 1)[None, :, None]
-        dense = idx[..., 0] + stride * (idx[..., 1] + stride * idx[..., 2])
-        hashed = (idx[..., 0] * _PRIMES[0]) ^ (idx[..., 1] * _PRIMES[1]) ^ (idx[..., 2] * _PRIMES[2])
-        flat = (
-            torch.where(self.dense[None, :, None], dense, hashed % self.size[None, :, None])
-            + self.offset[None, :, None]
-        )
+        flat = idx[..., 0] + stride * (idx[..., 1] + stride * idx[..., 2])
+        if not self.all_dense:  # the default grid's levels all fit their tables: no hash to compute
+            hashed = (idx[..., 0] * _PRIMES[0]) ^ (idx[..., 1] * _PRIMES[1]) ^ (idx[..., 2] * _PRIMES[2])
+            flat = torch.where(self.dense[None, :, None], flat, hashed % self.size[None, :, None])
+        flat = flat + self.offset[None, :, None]
         w = torch.stack([1 - w1, w1], -1)  # (N, L, 3, 2): weights of the near and far corner per axis
         weight = (w[:, :, 0, :, None, None] * w[:, :, 1, None, :, None] * w[:, :, 2, None, None, :]).reshape(
             *w.shape[:2], 8

@@ -35,7 +35,7 @@ def fit(
     import torch
 
     from qmdf.fields.data import loader
-    from qmdf.fields.module import Diverged
+    from qmdf.fields.module import LOG_EVERY, Diverged
 
     L.seed_everything(seed, workers=True, verbose=False)
     warnings.filterwarnings("ignore", message=".*LeafSpec.*")  # Lightning's own deprecation noise, not ours
@@ -71,7 +71,7 @@ def fit(
         callbacks=callbacks,
         enable_progress_bar=show_progress,
         enable_model_summary=False,
-        log_every_n_steps=10,
+        log_every_n_steps=LOG_EVERY,
         num_sanity_val_steps=0,
         limit_val_batches=0,
         default_root_dir=str(work_dir),

@@ -11,6 +11,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from qmdf.geometry._bvh import node_bound
+
 _EPS = 1e-12
 
 
@@ -80,66 +82,6 @@ def _prim_sdf(px, py, pz, j, prims, kind, c, r):
     return _slab(px, py, pz, c, r, a, prims[j, 1], prims[j, 2])
 
 
-@njit(cache=True)
-def build_bvh(anchor, rho, leaf_size):
-    """A bounding-volume hierarchy over primitives, each inside its ball (anchor, rho): median splits of the
-    anchors along the longest side. Per node: the anchors' box, the largest rho, the children (-1 at a leaf)
-    and the leaf's range in ``order``. A node's primitives are at least dist(p, box) - rho_max from p."""
-    n = anchor.shape[0]
-    order = np.arange(n)
-    cap = 2 * (n // max(leaf_size, 1) + 1) * 2 + 1
-    lo = np.empty((cap, 3))
-    hi = np.empty((cap, 3))
-    rho_max = np.empty(cap)
-    left = np.full(cap, -1, np.int64)
-    right = np.full(cap, -1, np.int64)
-    start = np.zeros(cap, np.int64)
-    count = np.zeros(cap, np.int64)
-    stack = np.empty(cap, np.int64)
-    n_nodes, top = 1, 1
-    stack[0] = 0
-    start[0], count[0] = 0, n
-    while top > 0:
-        top -= 1
-        node = stack[top]
-        s, m = start[node], count[node]
-        idx = order[s : s + m]
-        for k in range(3):
-            lo[node, k] = anchor[idx, k].min()
-            hi[node, k] = anchor[idx, k].max()
-        rho_max[node] = rho[idx].max()
-        if m <= leaf_size:
-            continue
-        axis = np.argmax(hi[node] - lo[node])
-        sorted_idx = idx[np.argsort(anchor[idx, axis])]
-        order[s : s + m] = sorted_idx
-        half = m // 2
-        for child, cs, cm in ((n_nodes, s, half), (n_nodes + 1, s + half, m - half)):
-            start[child], count[child] = cs, cm
-            stack[top] = child
-            top += 1
-        left[node], right[node] = n_nodes, n_nodes + 1
-        n_nodes += 2
-    return (
-        order,
-        lo[:n_nodes],
-        hi[:n_nodes],
-        rho_max[:n_nodes],
-        left[:n_nodes],
-        right[:n_nodes],
-        start[:n_nodes],
-        count[:n_nodes],
-    )
-
-
-@njit(cache=True)
-def _node_bound(px, py, pz, lo, hi, rho_max, node):
-    dx = max(lo[node, 0] - px, 0.0, px - hi[node, 0])
-    dy = max(lo[node, 1] - py, 0.0, py - hi[node, 1])
-    dz = max(lo[node, 2] - pz, 0.0, pz - hi[node, 2])
-    return math.sqrt(dx * dx + dy * dy + dz * dz) - rho_max[node]
-
-
 @njit(cache=True, parallel=True)
 def union_min(p, best, stop, arg, order, lo, hi, rho_max, left, right, start, count, prims, kind, c, r, anchor, rho):
     """best[i] = min(best[i], min over primitives of their sdf at p[i]), arg[i] its primitive (kept where
@@ -154,7 +96,7 @@ def union_min(p, best, stop, arg, order, lo, hi, rho_max, left, right, start, co
         while top > 0 and b >= stop[i]:
             top -= 1
             node = stack[top]
-            if _node_bound(px, py, pz, lo, hi, rho_max, node) > b:
+            if node_bound(px, py, pz, lo, hi, rho_max, node) > b:
                 continue
             if left[node] < 0:
                 for m in range(start[node], start[node] + count[node]):
@@ -167,8 +109,8 @@ def union_min(p, best, stop, arg, order, lo, hi, rho_max, left, right, start, co
                         b = v
                         arg[i] = j
                 continue
-            bl = _node_bound(px, py, pz, lo, hi, rho_max, left[node])
-            br = _node_bound(px, py, pz, lo, hi, rho_max, right[node])
+            bl = node_bound(px, py, pz, lo, hi, rho_max, left[node])
+            br = node_bound(px, py, pz, lo, hi, rho_max, right[node])
             # the nearer child on top of the stack, searched first
             near, far = (left[node], right[node]) if bl <= br else (right[node], left[node])
             stack[top] = far

@@ -112,7 +112,7 @@ class EnvelopeUnion:
     def __init__(
         self, centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, faces: np.ndarray, leaf_size: int = 4
     ):
-        from qmdf.geometry._envelope_kernels import build_bvh
+        from qmdf.geometry._bvh import build_bvh
 
         self.c = np.asarray(centers, np.float64)
         self.r = np.asarray(radii, np.float64)
