@@ -152,3 +152,18 @@ def test_a_branch_the_mesh_lacks_grows_as_a_dangling_edge():
     assert stats["added"] == 1
     assert e2.tolist() == [[0, 3]] and np.array_equal(f2, faces)
     assert euler_medial_mesh(len(v2), e2, f2) == 1
+
+
+def test_envelope_fit_is_small_on_the_exact_disc_and_grows_as_it_falls_short():
+    from qmdf.medial.coverage import envelope_fit
+
+    mesh, samples = _ellipsoid_data()
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    no_edges = np.zeros((0, 2), int)
+    fits = []
+    for scale in (1.0, 0.7):
+        _, v, r, faces = _short_disc(scale)
+        fits.append(envelope_fit(v, r, no_edges, faces, balls, np.random.default_rng(0), samples=4000))
+    exact, short = fits
+    assert exact["chamfer"] < 2e-3 and exact["hausdorff"] < 8e-3  # the disc's triangles and the mesh's facets
+    assert short["chamfer"] > 3 * exact["chamfer"] and short["hausdorff"] > 0.025

@@ -236,3 +236,32 @@ def test_redundant_edges_against_the_plain_loops():
             near = cKDTree(x).query_ball_point(x[v], reach)
             want[i] |= bool(degree[v] == 1 and any(u != v and u != w for u in near))
     assert 0 < want.sum() < lone.sum() and np.array_equal(got, want)
+
+
+def test_coverage_that_fits_worse_is_not_kept():
+    """simplified_sheet keeps the MAT before coverage where coverage made its envelope's fit worse."""
+    from qmdf.medial.sheet import simplified_sheet
+
+    q = np.abs(Z) + np.maximum(R - 0.4, 0)
+    v, f = _disc_membrane(0.4)
+    grid = {"inside": q < 0.03, "lo": LO, "spacing": SPACING, "eps": 0.03}
+
+    def worse(v, r, e, f, budget):  # an added vertex with a huge ball
+        return np.vstack([v, [[0, 0, 0.5]]]), np.r_[r, 0.3], np.vstack([e, [[0, len(v)]]]).astype(int), f, {"added": 1}
+
+    runs = {}
+    for name, fit in (("kept", None), ("judged", lambda v, r, e, f: float(r.max()))):
+        mat, stats = simplified_sheet(
+            grid,
+            lambda p: {"q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0)},
+            v,
+            f,
+            lambda x: np.full(len(x), 0.05),
+            target_vertices=0,
+            refine_of=worse,
+            refine_vertices=5,
+            fit_of=fit,
+        )
+        runs[name] = (mat, stats)
+    assert len(runs["kept"][0].vertices) == len(runs["judged"][0].vertices) + 1
+    assert runs["judged"][1]["coverage"]["kept"] is False and runs["judged"][0].radii.max() == 0.05

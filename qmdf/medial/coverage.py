@@ -291,6 +291,19 @@ def refine_coverage(
     return v, r, e, f, stats
 
 
+def envelope_fit(v, r, e, f, balls: SurfaceBalls, rng: np.random.Generator, samples: int = 10000) -> dict:
+    """CD / HD (``metrics.chamfer_hausdorff``) between the medial mesh's envelope and the data: the balls'
+    surface samples to the envelope (its union SDF), and points sampled exactly on the envelope to the data
+    (``balls.distance``). What coverage must not make worse."""
+    from qmdf.geometry.envelope import EnvelopeUnion, sample_union_surface
+    from qmdf.geometry.metrics import chamfer_hausdorff
+
+    union = EnvelopeUnion(v, r, e, f)
+    g = balls.samples if len(balls.samples) <= samples else balls.samples[rng.choice(len(balls.samples), samples)]
+    on_envelope = sample_union_surface(union, samples, rng, resolution=96)
+    return chamfer_hausdorff(balls.distance(on_envelope)[0], np.abs(union.sdf(g)))
+
+
 def cover_mat(mat, balls: SurfaceBalls, max_added: int, **settings):
     """``refine_coverage`` on a ``MedialMesh``: (the covered ``MedialMesh``, stats)."""
     from qmdf.geometry.ma_format import MedialMesh

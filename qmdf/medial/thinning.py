@@ -104,6 +104,28 @@ def _cofaces(cells, i, j, k, out):
 
 
 @njit(cache=True)
+def _push_free_faces(cells, values, ci, cj, ck, heap, co, faces):
+    """Push (face, its one coface) for each face of cell c that is free."""
+    sh = cells.shape
+    nf = 0
+    c = (ci, cj, ck)
+    for ax in range(3):
+        if c[ax] % 2 == 1:
+            for d in (-1, 1):
+                p = [ci, cj, ck]
+                p[ax] += d
+                faces[nf, 0], faces[nf, 1], faces[nf, 2] = p[0], p[1], p[2]
+                nf += 1
+    for f in range(nf):
+        fi, fj, fk = faces[f, 0], faces[f, 1], faces[f, 2]
+        if cells[fi, fj, fk] and _cofaces(cells, fi, fj, fk, co) == 1:
+            a, b, c2 = _key(values, fi, fj, fk, co[0, 0], co[0, 1], co[0, 2])
+            s = (fi * sh[1] + fj) * sh[2] + fk
+            t = (co[0, 0] * sh[1] + co[0, 1]) * sh[2] + co[0, 2]
+            heapq.heappush(heap, (a, b, c2, s, t))
+
+
+@njit(cache=True)
 def _collapse(cells, values, keep_q, seeds):
     """Collapse in place; returns how many pairs were removed. Free cells are looked for everywhere, or, with
     ``seeds`` (cells whose rule changed since the last collapse, which left no collapsible pair), only among
@@ -125,23 +147,8 @@ def _collapse(cells, values, keep_q, seeds):
                         a, b, c = _key(values, i, j, k, co[0, 0], co[0, 1], co[0, 2])
                         heapq.heappush(heap, (a, b, c, flat(i, j, k), flat(co[0, 0], co[0, 1], co[0, 2])))
     for m in range(seeds.shape[0]):
-        ci, cj, ck = seeds[m, 0], seeds[m, 1], seeds[m, 2]
-        if not cells[ci, cj, ck]:
-            continue
-        nf = 0
-        c = (ci, cj, ck)
-        for ax in range(3):
-            if c[ax] % 2 == 1:
-                for d in (-1, 1):
-                    p = [ci, cj, ck]
-                    p[ax] += d
-                    faces[nf, 0], faces[nf, 1], faces[nf, 2] = p[0], p[1], p[2]
-                    nf += 1
-        for f in range(nf):
-            fi, fj, fk = faces[f, 0], faces[f, 1], faces[f, 2]
-            if cells[fi, fj, fk] and _cofaces(cells, fi, fj, fk, co) == 1:
-                a, b, c = _key(values, fi, fj, fk, co[0, 0], co[0, 1], co[0, 2])
-                heapq.heappush(heap, (a, b, c, flat(fi, fj, fk), flat(co[0, 0], co[0, 1], co[0, 2])))
+        if cells[seeds[m, 0], seeds[m, 1], seeds[m, 2]]:
+            _push_free_faces(cells, values, seeds[m, 0], seeds[m, 1], seeds[m, 2], heap, co, faces)
     removed = 0
     while len(heap):
         negv, _, _, s, t = heapq.heappop(heap)
@@ -158,21 +165,8 @@ def _collapse(cells, values, keep_q, seeds):
         cells[ti, tj, tk] = 0
         removed += 1
         # faces of sigma and of tau lost a coface: any now free becomes a candidate
-        for ci, cj, ck in ((si, sj, sk), (ti, tj, tk)):
-            nf = 0
-            c = (ci, cj, ck)
-            for ax in range(3):
-                if c[ax] % 2 == 1:
-                    for d in (-1, 1):
-                        p = [ci, cj, ck]
-                        p[ax] += d
-                        faces[nf, 0], faces[nf, 1], faces[nf, 2] = p[0], p[1], p[2]
-                        nf += 1
-            for f in range(nf):
-                fi, fj, fk = faces[f, 0], faces[f, 1], faces[f, 2]
-                if cells[fi, fj, fk] and _cofaces(cells, fi, fj, fk, co) == 1:
-                    a, b, c = _key(values, fi, fj, fk, co[0, 0], co[0, 1], co[0, 2])
-                    heapq.heappush(heap, (a, b, c, flat(fi, fj, fk), flat(co[0, 0], co[0, 1], co[0, 2])))
+        _push_free_faces(cells, values, si, sj, sk, heap, co, faces)
+        _push_free_faces(cells, values, ti, tj, tk, heap, co, faces)
     return removed
 
 

@@ -115,12 +115,12 @@ class Sheet(Stage):
     inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
     optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
     outputs = {"sheet": MAT, "sheet_stats": JSON}
-    version = (
-        "4"  # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage
-    )
+    # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
+    # 5: coverage kept only where it improves the envelope's fit
+    version = "5"
 
     def run(self, ctx: StageContext) -> None:
-        from qmdf.medial.coverage import refine_coverage
+        from qmdf.medial.coverage import envelope_fit, refine_coverage
         from qmdf.medial.radii import centre_on_data, learned_inside, mat_radii
         from qmdf.medial.sheet import simplified_sheet
 
@@ -135,22 +135,31 @@ class Sheet(Stage):
             def centre_of(x):
                 return centre_on_data(x, mesh, points, learned_inside(field, mesh))
 
+        fit_of = None
         if cfg.coverage_vertices and cfg.radius == "data":
+            measured = []
+
+            def balls():  # measured only when coverage runs (not on a sheet left above the target)
+                if not measured:
+                    measured.append(input_surface_balls(ctx, field, mesh, points))
+                return measured[0]
 
             def refine_of(v, r, e, f, budget):
-                # the balls only when coverage runs (not on a sheet the simplification left above the target)
                 return refine_coverage(
                     v,
                     r,
                     e,
                     f,
-                    input_surface_balls(ctx, field, mesh, points),
+                    balls(),
                     budget,
                     cfg.coverage_tolerance,
                     cfg.coverage_spacing,
                     cfg.coverage_overshoot,
                     cfg.coverage_rounds,
                 )
+
+            def fit_of(v, r, e, f):
+                return envelope_fit(v, r, e, f, balls(), np.random.default_rng(ctx.seed))["chamfer"]
 
         mat, stats = simplified_sheet(
             ctx.load("covering_grid"),
@@ -171,6 +180,7 @@ class Sheet(Stage):
             centre_of=centre_of,
             refine_of=refine_of,
             refine_vertices=cfg.coverage_vertices,
+            fit_of=fit_of,
         )
         c = stats.get("coverage")
         if c and "shortfall_before" in c:
@@ -184,6 +194,12 @@ class Sheet(Stage):
                 c["shortfall_after"]["max"],
                 c["shortfall_before"]["max"],
             )
+            if c.get("kept") is False:
+                ctx.log.info(
+                    "coverage: not kept; with it the envelope fits the data worse (CD %.3e against %.3e before)",
+                    c["cd_after"],
+                    c["cd_before"],
+                )
         elif c is not None:
             ctx.log.info("coverage: nothing added (%s)", c.get("skipped", "no budget, samples or edges"))
         v = len(mat.vertices)
