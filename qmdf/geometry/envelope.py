@@ -9,7 +9,6 @@ vectorised over pairs of points and primitives: arrays of shape (N, 3) and (N,).
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from qmdf.geometry.metrics import edges_off_polygons

@@ -298,8 +298,8 @@ def contract(
         if vol > 0:
             g += lambda_volume / area0 * vol_grad
         lap = L @ x
-        e_lap = float((w[:, None] * lap * lap).sum(1).mean())
-        g += lambda_laplacian * (2.0 / len(x)) * (LT @ (w[:, None] * lap))
+        weighted = w[:, None] * lap
+        g += lambda_laplacian * (2.0 / len(x)) * (LT @ weighted)
         if pull is not None:
             feature_distance = pull(x, it, g, feature_weight / len(surf))
         zipped = zipper(x, it, g, zip_weight / len(surf)) if zipper is not None else None
@@ -308,6 +308,7 @@ def contract(
         if on_iteration is not None:  # progress for the caller (the stage's heartbeat)
             on_iteration(it + 1, iterations)
         if it % log_every == 0 or it == iterations - 1:
+            e_lap = float((weighted * lap).sum(1).mean())
             geom = lambda_volume * max(vol, 0.0) / area0 + lambda_laplacian * e_lap
             rec = {
                 "iteration": it,

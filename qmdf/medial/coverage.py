@@ -300,7 +300,7 @@ def envelope_fit(v, r, e, f, balls: SurfaceBalls, rng: np.random.Generator, samp
 
     union = EnvelopeUnion(v, r, e, f)
     g = balls.samples if len(balls.samples) <= samples else balls.samples[rng.choice(len(balls.samples), samples)]
-    on_envelope = sample_union_surface(union, samples, rng, resolution=96)
+    on_envelope = sample_union_surface(union, samples, rng, resolution=64)  # only to place samples on it
     return chamfer_hausdorff(balls.distance(on_envelope)[0], np.abs(union.sdf(g)))
 
 

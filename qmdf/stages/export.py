@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_kind
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
@@ -65,7 +66,9 @@ class Export(Stage):
         "reconstruction": MESH,
         "membrane_mat": MAT,
     }
-    version = "4"  # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data; 4: coverage
+    # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data; 4: coverage; 5: coverage
+    # kept only where it improves the envelope's fit
+    version = "5"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -127,15 +130,27 @@ class Export(Stage):
 
     @staticmethod
     def _covered(ctx: StageContext, mat, field, mesh, points):
-        from qmdf.medial.coverage import cover_mat
+        from qmdf.medial.coverage import cover_mat, envelope_fit
 
         balls = input_surface_balls(ctx, field, mesh, points)
-        mat, stats = cover_mat(mat, balls, ctx.cfg.coverage_vertices)
+        covered, stats = cover_mat(mat, balls, ctx.cfg.coverage_vertices)
+        if not stats["added"]:
+            return mat
+        # kept only where the envelope fits the data better (as in the sheet stage): on the sharp-sphere's
+        # membrane, insertions into the closed double layer took CD 0.90e-3 / HD 33e-3 to 4.2e-3 / 251e-3
+        fits = [
+            envelope_fit(m.vertices, m.radii, m.lone_edges(), m.faces, balls, np.random.default_rng(ctx.seed))
+            for m in (mat, covered)
+        ]
+        kept = fits[1]["chamfer"] <= fits[0]["chamfer"]
         ctx.log.info(
             "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "
-            "(was %.2e)",
+            "(was %.2e); CD %.3e against %.3e before: %s",
             stats["added"],
             stats.get("shortfall_after", {}).get("mean", float("nan")),
             stats.get("shortfall_before", {}).get("mean", float("nan")),
+            fits[1]["chamfer"],
+            fits[0]["chamfer"],
+            "kept" if kept else "not kept",
         )
-        return mat
+        return covered if kept else mat
