@@ -167,3 +167,28 @@ def test_envelope_fit_is_small_on_the_exact_disc_and_grows_as_it_falls_short():
     exact, short = fits
     assert exact["chamfer"] < 2e-3 and exact["hausdorff"] < 8e-3  # the disc's triangles and the mesh's facets
     assert short["chamfer"] > 3 * exact["chamfer"] and short["hausdorff"] > 0.025
+
+
+def test_cover_mat_keeps_coverage_only_where_the_envelope_fits_better(monkeypatch):
+    """cover_mat: the short disc's coverage brings its envelope closer to the data and is kept; an insertion that
+    puts a ball far outside the shape makes the fit worse and the MAT comes back as it was."""
+    from qmdf.geometry.ma_format import MedialMesh
+    from qmdf.medial import coverage
+    from qmdf.medial.coverage import cover_mat
+
+    mesh, samples = _ellipsoid_data()
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    _, v, r, faces = _short_disc(0.7)
+    mat = MedialMesh(v, r, np.zeros((0, 2), int), faces).with_face_edges()
+    covered, stats = cover_mat(mat, balls, 400, seed=0, tolerance=2e-3)
+    assert stats["kept"] and stats["added"] == len(covered.vertices) - len(v) > 0
+    assert stats["chamfer_after"] < 0.5 * stats["chamfer_before"]
+
+    def spike(v, r, e, f, balls, budget, **settings):  # one vertex with a big ball above the shape, on an edge
+        e = np.vstack([e, [[0, len(v)]]]).astype(int)
+        return np.vstack([v, [[0, 0, 0.6]]]), np.r_[r, 0.3], e, f, {"added": 1}
+
+    monkeypatch.setattr(coverage, "refine_coverage", spike)
+    same, stats = cover_mat(mat, balls, 400, seed=0)
+    assert not stats["kept"] and stats["chamfer_after"] > stats["chamfer_before"]
+    assert same is mat

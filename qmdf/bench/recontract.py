@@ -90,7 +90,7 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
 
         sampled = _latest_before(stages, "points", last["index"])
         load = (lambda: POINTS.load(run_dir / sampled)) if sampled else None
-        mat, _ = cover_mat(mat, surface_balls_of(field, mesh, points, load), budget)
+        mat, _ = cover_mat(mat, surface_balls_of(field, mesh, points, load), budget, int(config.get("seed", 0)))
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)
     resolution = int(config.get("export", {}).get("reconstruction_resolution", 128))

@@ -304,11 +304,22 @@ def envelope_fit(v, r, e, f, balls: SurfaceBalls, rng: np.random.Generator, samp
     return chamfer_hausdorff(balls.distance(on_envelope)[0], np.abs(union.sdf(g)))
 
 
-def cover_mat(mat, balls: SurfaceBalls, max_added: int, **settings):
-    """``refine_coverage`` on a ``MedialMesh``: (the covered ``MedialMesh``, stats)."""
+def cover_mat(mat, balls: SurfaceBalls, max_added: int, seed: int = 0, **settings):
+    """``refine_coverage`` on a ``MedialMesh``, kept only where it improves the envelope's fit to the data
+    (``envelope_fit``'s CD): (the ``MedialMesh`` kept, stats with ``kept``, ``chamfer_before`` and
+    ``chamfer_after`` when balls were added). On the sharp sphere's membrane, insertions into the closed double
+    layer took CD 0.90e-3 / HD 33e-3 to 4.2e-3 / 251e-3."""
     from qmdf.geometry.ma_format import MedialMesh
 
     v, r, e, f, stats = refine_coverage(
         mat.vertices, mat.radii, mat.lone_edges(), mat.faces, balls, max_added, **settings
     )
-    return MedialMesh(v, r, e, f).with_face_edges(), stats
+    if not stats["added"]:
+        return mat, {**stats, "kept": False}
+    covered = MedialMesh(v, r, e, f).with_face_edges()
+    before, after = (
+        envelope_fit(m.vertices, m.radii, m.lone_edges(), m.faces, balls, np.random.default_rng(seed))["chamfer"]
+        for m in (mat, covered)
+    )
+    kept = after <= before
+    return (covered if kept else mat), {**stats, "kept": kept, "chamfer_before": before, "chamfer_after": after}

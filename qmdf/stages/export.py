@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_kind
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
@@ -130,27 +129,20 @@ class Export(Stage):
 
     @staticmethod
     def _covered(ctx: StageContext, mat, field, mesh, points):
-        from qmdf.medial.coverage import cover_mat, envelope_fit
+        from qmdf.medial.coverage import cover_mat
 
-        balls = input_surface_balls(ctx, field, mesh, points)
-        covered, stats = cover_mat(mat, balls, ctx.cfg.coverage_vertices)
-        if not stats["added"]:
-            return mat
-        # kept only where the envelope fits the data better (as in the sheet stage): on the sharp-sphere's
-        # membrane, insertions into the closed double layer took CD 0.90e-3 / HD 33e-3 to 4.2e-3 / 251e-3
-        fits = [
-            envelope_fit(m.vertices, m.radii, m.lone_edges(), m.faces, balls, np.random.default_rng(ctx.seed))
-            for m in (mat, covered)
-        ]
-        kept = fits[1]["chamfer"] <= fits[0]["chamfer"]
-        ctx.log.info(
-            "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "
-            "(was %.2e); CD %.3e against %.3e before: %s",
-            stats["added"],
-            stats.get("shortfall_after", {}).get("mean", float("nan")),
-            stats.get("shortfall_before", {}).get("mean", float("nan")),
-            fits[1]["chamfer"],
-            fits[0]["chamfer"],
-            "kept" if kept else "not kept",
+        covered, stats = cover_mat(
+            mat, input_surface_balls(ctx, field, mesh, points), ctx.cfg.coverage_vertices, ctx.seed
         )
-        return covered if kept else mat
+        if stats["added"]:
+            ctx.log.info(
+                "coverage of the membrane: %d vertices added; the surface outside the envelope by %.2e on average "
+                "(was %.2e); CD %.3e against %.3e before: %s",
+                stats["added"],
+                stats.get("shortfall_after", {}).get("mean", float("nan")),
+                stats.get("shortfall_before", {}).get("mean", float("nan")),
+                stats["chamfer_after"],
+                stats["chamfer_before"],
+                "kept" if stats["kept"] else "not kept",
+            )
+        return covered
