@@ -390,7 +390,7 @@ class Pipeline:
         if scratch.exists():
             shutil.rmtree(scratch)
         scratch.mkdir(parents=True)
-        ctx.stage_dir = scratch
+        ctx.stage_dir, ctx.output_dir = scratch, final_dir
         try:
             step.stage.run(ctx)
             if ctx.notes:

@@ -105,6 +105,9 @@ class StageContext:
     #: what the stage decided that a reader of the manifest should see (train's supervision route); stored as
     #: notes.json in the stage folder, so a cached result carries it too
     notes: dict = field(default_factory=dict)
+    #: where the stage's outputs land once it succeeds (stage_dir is a scratch folder while it runs): the folder
+    #: to name in a message
+    output_dir: Path | None = None
 
     @property
     def seed(self) -> int:

@@ -42,6 +42,23 @@ def test_surface_balls_of_a_mesh_are_the_exact_medial_balls():
     assert np.all(balls.radii - mesh_distance(*mesh, balls.centres)[0] < 3e-3)
 
 
+def test_surface_balls_of_a_mesh_are_centred_inside_it():
+    """Near a cone's apex the rays along the smoothed normals leave the shape and never close (radius 1): such
+    balls are dropped by the mesh's winding number."""
+    import trimesh
+
+    from qmdf.geometry.inside import mesh_winding_number
+
+    cone = trimesh.creation.cone(radius=0.3, height=0.8, sections=48)
+    mesh = (np.asarray(cone.vertices, np.float64), np.asarray(cone.faces, np.int64))
+    samples = sample_surface(*mesh, 5000, np.random.default_rng(0))
+    unchecked = surface_balls(samples.points, samples.normals, mesh, is_inside=lambda q: np.ones(len(q), bool))
+    assert (mesh_winding_number(*mesh, unchecked.centres) < 0.5).sum() > 50
+    balls = surface_balls(samples.points, samples.normals, mesh)
+    assert (mesh_winding_number(*mesh, balls.centres) > 0.5).all()
+    assert len(balls.centres) > 0.9 * len(samples.points) and balls.radii.max() < 0.3
+
+
 def test_surface_balls_of_a_cloud_stay_inside_its_points():
     field = EllipsoidField()
     _, samples = _ellipsoid_data(3000)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -299,6 +301,9 @@ def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(comp
     assert res.load("sheet_stats")["compact"] is False and len(res.load("sheet").faces) == 0
     assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
     assert "the single sheet is not compact" in caplog.text
+    # the message names where the sheet is once the stage is done, not the scratch folder it ran in
+    named = caplog.text.split("the sheet stays in ")[1].split()[0]
+    assert ".partial" not in named and Path(named).is_file()
 
 
 def test_the_eps_floor_is_the_axis_q_noise_plus_a_margin_of_grid_cells():

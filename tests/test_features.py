@@ -196,6 +196,54 @@ def test_bisector_samples_lie_on_the_box_medial_axis_with_its_radius():
     assert len(bisector_samples(feats, flat, points, 0.3, 0.005)[0]) == 0
 
 
+def test_bisector_walks_stay_inside_and_at_their_depth_when_checked_against_the_mesh():
+    """Features whose normals are wrong (flipped: the walk heads out of the shape; a sliver's: it heads anywhere)
+    give medial samples outside or far from their radius with the input points' test alone (on the block 853
+    samples outside asked sdf = -r in its central void); with the mesh's distance and winding number every
+    sample kept is inside and at its radius, and the right walks are kept."""
+    import trimesh
+
+    from qmdf.geometry.bisectors import bisector_samples
+    from qmdf.geometry.inside import mesh_distance, mesh_winding_number
+    from qmdf.medial.features import sample_segments, sharp_mesh_segments
+    from qmdf.medial.radii import data_distance
+
+    box = trimesh.creation.box(extents=2 * BOX_HALF).subdivide().subdivide().subdivide()  # a fine facet tolerance
+    v, f = np.asarray(box.vertices, np.float64), np.asarray(box.faces, np.int64)
+    a, b, mean_normal = sharp_mesh_segments(v, f, 30.0)
+    feats, seg = sample_segments(a, b, 0.01, return_index=True)
+    normals = mean_normal[seg].copy()
+    rng = np.random.default_rng(3)
+    wrong = rng.choice(len(feats), len(feats) // 5, replace=False)
+    flipped, sliver = wrong[::2], wrong[1::2]
+    normals[flipped] *= -1
+    turned = rng.normal(size=(len(sliver), 3))
+    normals[sliver] = 0.2 * turned / np.linalg.norm(turned, axis=1, keepdims=True)  # cos 0.2: faces almost folded
+    points = trimesh.sample.sample_surface(box, 20000, seed=1)[0]
+
+    def bad(x, r):
+        d, _ = mesh_distance(v, f, x)
+        return (mesh_winding_number(v, f, x) < 0.5) | (d < 0.98 * r) | (d > r / 0.98 + tol)
+
+    distance, tol = data_distance((v, f))
+    x, r = bisector_samples(feats, normals, points, 0.3, 0.005)
+    assert bad(x, r).sum() > 100  # the unchecked walks do go wrong here
+
+    x, r = bisector_samples(
+        feats,
+        normals,
+        points,
+        0.3,
+        0.005,
+        distance=lambda q: distance(q)[0],
+        tol=tol,
+        is_inside=lambda q: mesh_winding_number(v, f, q) > 0.5,
+    )
+    assert not bad(x, r).any()
+    right, _ = bisector_samples(np.delete(feats, wrong, 0), np.delete(normals, wrong, 0), points, 0.3, 0.005)
+    assert len(x) >= 0.95 * len(right)
+
+
 def test_contract_after_feature_detect_pulls_toward_the_features(compose_cfg, tmp_path):
     """The pipeline hands feature_detect's points to a later contract (and only to a later one)."""
     cfg = compose_cfg(

@@ -25,6 +25,15 @@ def mesh_winding_number(vertices: np.ndarray, faces: np.ndarray, queries: np.nda
     return igl.fast_winding_number(_f64(vertices), np.ascontiguousarray(faces, np.int64), _f64(queries))
 
 
+def mesh_inside_test(vertices: np.ndarray, faces: np.ndarray):
+    """``is_inside(queries) -> bool array``: the mesh's generalized winding number above 1/2."""
+
+    def is_inside(queries: np.ndarray) -> np.ndarray:
+        return mesh_winding_number(vertices, faces, queries) > 0.5
+
+    return is_inside
+
+
 def mesh_distance(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unsigned distance from each query to the mesh and the closest point on it."""
     dist, _, closest = mesh_closest(vertices, faces, queries)

@@ -85,25 +85,27 @@ def centre_on_data(
     twice the offset; the moved one touches both. The data are ``mesh`` (vertices, faces; ``tol`` defaults to
     3e-4 + 8% of the median edge, the mesh route's rays' tolerance for facets) or ``points`` (``tol`` defaults to
     a quarter of their median distance to the 8th neighbour). ``is_inside(points) -> bool array`` tells inside
-    (default with a mesh: its winding number; a cloud's caller passes the learned sign). A vertex outside, or
-    whose centre would land outside, stays, with its distance as radius: from outside the ray runs outward (on
-    the bunny a vertex the field put inside moved 0.17 out, its ball a bulge of 0.14). Returns (centres, radii)."""
+    (default with a mesh: its winding number; a cloud's caller passes the learned sign). A vertex whose centre
+    would land outside stays, with its distance as radius: from outside the ray runs outward (on the bunny a
+    vertex the field put inside moved 0.17 out, its ball a bulge of 0.14). A vertex outside moves to its closest
+    point with radius 0: a ball of its distance would stand out of the shape by twice that (on the block, 31e-3
+    out: HD 63e-3), and the point is on the surface the MAT must reach. Returns (centres, radii)."""
     from qmdf.geometry.medial_radius import inward_medial_radii
 
     x = np.asarray(vertices, np.float64)
     distance, data_tol = data_distance(mesh, points)
     tol = data_tol if tol is None else tol
     if is_inside is None and mesh is not None:
-        from qmdf.geometry.inside import mesh_winding_number
+        from qmdf.geometry.inside import mesh_inside_test
 
-        def is_inside(q):
-            return mesh_winding_number(mesh[0], mesh[1], q) > 0.5
-
+        is_inside = mesh_inside_test(*mesh)
     if is_inside is None:
         raise ValueError("centring on points needs is_inside (the learned sign)")
     d, foot = distance(x)
     out, radii = x.copy(), d.copy()
-    move = np.flatnonzero(np.asarray(is_inside(x), bool) & (d > 0))
+    inside = np.asarray(is_inside(x), bool)
+    out[~inside], radii[~inside] = foot[~inside], 0.0
+    move = np.flatnonzero(inside & (d > 0))
     if len(move):
         u = (x[move] - foot[move]) / d[move, None]
         r = inward_medial_radii(foot[move], -u, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=20)

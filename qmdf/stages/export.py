@@ -66,8 +66,9 @@ class Export(Stage):
         "membrane_mat": MAT,
     }
     # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data; 4: coverage; 5: coverage
-    # kept only where it improves the envelope's fit
-    version = "5"
+    # kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
+    # 7: a vertex outside goes to the surface with radius 0
+    version = "7"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh

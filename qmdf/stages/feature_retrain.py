@@ -49,6 +49,7 @@ class FeatureRetrain(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}  # the supervision route, as train's
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
+    version = "2"  # 2: bisector walks checked against the data's distance and inside
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
@@ -74,7 +75,9 @@ class FeatureRetrain(Stage):
         points = ctx.load("points").points
         medial, radii = np.zeros((0, 3)), np.zeros(0)
         if cfg.bisector_weight > 0 and features.normals is not None:
-            medial, radii = bisector_samples(feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing)
+            medial, radii = bisector_samples(
+                feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing, **_walk_checks(ctx, field)
+            )
         train_cfg = dataclasses.replace(
             ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False
         )
@@ -130,3 +133,22 @@ class FeatureRetrain(Stage):
             len(medial),
             "" if features.normals is not None else " (the feature points carry no face normals: none walked)",
         )
+
+
+def _walk_checks(ctx: StageContext, field) -> dict:
+    """The bisector walks' distance, its tolerance and inside test: the input mesh's exact distance and winding
+    number when the input is an undegraded mesh, else the input points and the trained field's sign."""
+    from qmdf.geometry.inside import mesh_inside_test
+    from qmdf.medial.radii import data_distance
+    from qmdf.stages.inputs import input_data
+
+    mesh, data_points = input_data(ctx)
+    distance, tol = data_distance(mesh, data_points)
+    if mesh is not None:
+        is_inside = mesh_inside_test(*mesh)
+    else:
+
+        def is_inside(q):
+            return field.evaluate(q)["sdf"] < 0
+
+    return {"distance": lambda q: distance(q)[0], "tol": tol, "is_inside": is_inside}

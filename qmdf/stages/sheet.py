@@ -116,8 +116,9 @@ class Sheet(Stage):
     optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
-    # 5: coverage kept only where it improves the envelope's fit
-    version = "5"
+    # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
+    # 7: a vertex outside goes to the surface with radius 0
+    version = "7"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -213,7 +214,7 @@ class Sheet(Stage):
                 cfg.target_vertices,
                 stats.get("simplify", {}).get("link_rejected"),
                 stats["after"]["seam_edges"],
-                ctx.stage_dir / "sheet.ma",
+                (ctx.output_dir or ctx.stage_dir) / "sheet.ma",
             )
         ctx.save("sheet", mat)
         ctx.save("sheet_stats", stats)
