@@ -54,7 +54,8 @@ def test_ellipsoid_points_input_and_outside_vertices_go_to_the_surface():
 
 
 def test_a_vertex_outside_that_the_field_calls_inside_does_not_fly_off():
-    """From outside, the ray through the closest point runs outward: the mesh's winding number keeps it."""
+    """From outside, the ray through the closest point runs outward: a vertex outside by the mesh's winding number
+    goes to the surface instead, and one a wrong inside test calls inside stays, its centre landing outside."""
     field = BoxField()
     mesh = get_shape("box").mesh(16)
     mesh = (np.asarray(mesh.vertices), np.asarray(mesh.faces))

@@ -204,7 +204,7 @@ def test_bisector_walks_stay_inside_and_at_their_depth_when_checked_against_the_
     import trimesh
 
     from qmdf.geometry.bisectors import bisector_samples
-    from qmdf.geometry.inside import mesh_distance, mesh_winding_number
+    from qmdf.geometry.inside import mesh_distance, mesh_inside_test
     from qmdf.medial.features import sample_segments, sharp_mesh_segments
     from qmdf.medial.radii import data_distance
 
@@ -223,9 +223,10 @@ def test_bisector_walks_stay_inside_and_at_their_depth_when_checked_against_the_
 
     def bad(x, r):
         d, _ = mesh_distance(v, f, x)
-        return (mesh_winding_number(v, f, x) < 0.5) | (d < 0.98 * r) | (d > r / 0.98 + tol)
+        return ~inside(x) | (d < 0.98 * r) | (d > r / 0.98 + tol)
 
     distance, tol = data_distance((v, f))
+    inside = mesh_inside_test(v, f)
     x, r = bisector_samples(feats, normals, points, 0.3, 0.005)
     assert bad(x, r).sum() > 100  # the unchecked walks do go wrong here
 
@@ -237,7 +238,7 @@ def test_bisector_walks_stay_inside_and_at_their_depth_when_checked_against_the_
         0.005,
         distance=lambda q: distance(q)[0],
         tol=tol,
-        is_inside=lambda q: mesh_winding_number(v, f, q) > 0.5,
+        is_inside=inside,
     )
     assert not bad(x, r).any()
     right, _ = bisector_samples(np.delete(feats, wrong, 0), np.delete(normals, wrong, 0), points, 0.3, 0.005)

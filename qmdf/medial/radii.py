@@ -134,15 +134,17 @@ def membrane_to_mat(membrane, field, radius: str = "sdf", mesh=None, points=None
 
     v = np.asarray(membrane.vertices, np.float64)
     if centre and radius == "data":
-        v, radii = centre_on_data(v, mesh, points, learned_inside(field, mesh))
+        v, radii = centre_on_data(v, mesh, points, inside_test(field, mesh))
     else:
         radii = mat_radii(v, radius, field, mesh, points)
     return MedialMesh(v, radii, np.zeros((0, 2), np.int64), np.asarray(membrane.faces)).with_face_edges()
 
 
-def learned_inside(field, mesh):
-    """The inside test for ``centre_on_data``: the mesh's own (its winding number) when there is one, else the
+def inside_test(field, mesh):
+    """``is_inside(q) -> bool array``: the mesh's own (its winding number) when there is one, else the field's
     learned sign."""
     if mesh is not None:
-        return None
+        from qmdf.geometry.inside import mesh_inside_test
+
+        return mesh_inside_test(*mesh)
     return lambda q: field.evaluate(q)["sdf"] < 0

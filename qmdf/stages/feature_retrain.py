@@ -138,17 +138,9 @@ class FeatureRetrain(Stage):
 def _walk_checks(ctx: StageContext, field) -> dict:
     """The bisector walks' distance, its tolerance and inside test: the input mesh's exact distance and winding
     number when the input is an undegraded mesh, else the input points and the trained field's sign."""
-    from qmdf.geometry.inside import mesh_inside_test
-    from qmdf.medial.radii import data_distance
+    from qmdf.medial.radii import data_distance, inside_test
     from qmdf.stages.inputs import input_data
 
     mesh, data_points = input_data(ctx)
     distance, tol = data_distance(mesh, data_points)
-    if mesh is not None:
-        is_inside = mesh_inside_test(*mesh)
-    else:
-
-        def is_inside(q):
-            return field.evaluate(q)["sdf"] < 0
-
-    return {"distance": lambda q: distance(q)[0], "tol": tol, "is_inside": is_inside}
+    return {"distance": lambda q: distance(q)[0], "tol": tol, "is_inside": inside_test(field, mesh)}

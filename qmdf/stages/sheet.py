@@ -122,7 +122,7 @@ class Sheet(Stage):
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
-        from qmdf.medial.radii import centre_on_data, learned_inside, mat_radii
+        from qmdf.medial.radii import centre_on_data, inside_test, mat_radii
         from qmdf.medial.sheet import simplified_sheet
 
         cfg: SheetConfig = ctx.cfg
@@ -134,7 +134,7 @@ class Sheet(Stage):
         if cfg.centre and cfg.radius == "data":
 
             def centre_of(x):
-                return centre_on_data(x, mesh, points, learned_inside(field, mesh))
+                return centre_on_data(x, mesh, points, inside_test(field, mesh))
 
         fit_of = None
         if cfg.coverage_vertices and cfg.radius == "data":
