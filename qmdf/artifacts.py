@@ -160,6 +160,27 @@ def _load_grid(path: Path) -> Any:
 
 #: The grid nodes inside the covering: {"inside": (nx, ny, nz) bool, "lo": (3,), "spacing": (3,), "eps": float}
 GRID = ArtifactKind("grid", ".npz", _save_grid, _load_grid)
+
+
+def _save_rays(value: Any, path: Path) -> None:
+    with open(path, "wb") as f:
+        np.savez(
+            f,
+            origins=np.asarray(value["origins"], np.float64),
+            directions=np.asarray(value["directions"], np.float64),
+            radii=np.asarray(value["radii"], np.float64),
+            tol=np.float64(value["tol"]),
+        )
+
+
+def _load_rays(path: Path) -> Any:
+    with np.load(path, allow_pickle=False) as data:
+        return {k: (float(data[k]) if k == "tol" else data[k]) for k in ("origins", "directions", "radii", "tol")}
+
+
+#: Medial rays: {"origins": (N, 3), "directions": (N, 3) outward, "radii": (N,) the medial ball behind each origin
+#: along -direction, "tol": the ball test's tolerance}
+RAYS = ArtifactKind("rays", ".npz", _save_rays, _load_rays)
 #: A medial mesh with radii (qmdf.geometry.ma_format.MedialMesh), stored as .ma in the unit box
 MAT = ArtifactKind("mat", ".ma", _save_mat, _load_mat)
 

@@ -42,6 +42,25 @@ def test_surface_balls_of_a_mesh_are_the_exact_medial_balls():
     assert np.all(balls.radii - mesh_distance(*mesh, balls.centres)[0] < 3e-3)
 
 
+def test_surface_balls_reuse_the_mesh_routes_medial_rays():
+    """train's mesh route measures the same balls from the same samples: coverage takes them as they are, and
+    measures anew for other samples."""
+    from qmdf.fields.supervision import build_supervision
+
+    mesh, samples = _ellipsoid_data(3000)
+    sup = build_supervision("mesh", samples.points, samples.normals, np.random.default_rng(0), mesh, 2000)
+    rays = {"origins": samples.points, "directions": sup.ray_normals, "radii": sup.radii, "tol": 0.0}
+    rays["tol"] = sup.stats["ray_tolerance"]
+    measured = surface_balls(samples.points, samples.normals, mesh)
+    reused = surface_balls(samples.points, samples.normals, mesh, rays=rays)
+    for name in ("samples", "centres", "radii"):
+        assert np.array_equal(getattr(measured, name), getattr(reused, name))
+    fake = {**rays, "radii": np.zeros(len(samples.points))}  # reused: every ball dropped as too small
+    assert len(surface_balls(samples.points, samples.normals, mesh, rays=fake).radii) == 0
+    other = {**fake, "origins": samples.points + 1e-3}  # not these samples: measured anew
+    assert np.array_equal(surface_balls(samples.points, samples.normals, mesh, rays=other).radii, measured.radii)
+
+
 def test_surface_balls_of_a_mesh_are_centred_inside_it():
     """Near a cone's apex the rays along the smoothed normals leave the shape and never close (radius 1): such
     balls are dropped by the mesh's winding number."""

@@ -35,6 +35,7 @@ def surface_balls(
     outward: np.ndarray | None,
     mesh: tuple[np.ndarray, np.ndarray] | None = None,
     is_inside=None,
+    rays: dict | None = None,
 ) -> SurfaceBalls:
     """The medial ball behind each surface point, centred at ``points - r * n``. On a ``mesh``, n are the
     ``outward`` normals (PCA's when None) turned by the winding number and smoothed over the facets, and r is
@@ -42,19 +43,26 @@ def surface_balls(
     passes the learned sdf's gradient) and r is measured to the points. Kept: balls wider than the test's
     tolerance whose centre lies inside: ``is_inside(q) -> bool``, on a mesh by default its winding number (a ray
     along a normal gone wrong at a crease or a rim leaves the shape: on the sharp sphere 94 of 20k balls were
-    centred outside, some of radius 1, and one inserted ball stood 0.14 out of the shape)."""
+    centred outside, some of radius 1, and one inserted ball stood 0.14 out of the shape). On a mesh, ``rays``
+    (train's ``medial_rays`` artifact, measured the same way from the same ``points``) saves the measuring."""
     from qmdf.geometry.medial_radius import inward_medial_radii, mesh_outward_normals, mesh_ray_normals
     from qmdf.medial.radii import data_distance
 
     points = np.asarray(points, np.float64)
     distance, tol = data_distance(mesh, None if mesh is not None else points)
-    if mesh is not None:
+    reuse = mesh is not None and rays is not None and np.array_equal(rays["origins"], points)
+    if reuse:
+        outward, tol = rays["directions"], rays["tol"]
+    elif mesh is not None:
         outward, _ = mesh_outward_normals(points, outward, *mesh)
         outward, tol = mesh_ray_normals(points, outward, *mesh)
     elif outward is None:
         raise ValueError("the balls behind a cloud's points need their outward normals")
     n = outward / np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
-    r = inward_medial_radii(points, n, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=16)
+    if reuse:
+        r = np.asarray(rays["radii"], np.float64)
+    else:
+        r = inward_medial_radii(points, n, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=16)
     centres = points - r[:, None] * n
     if mesh is None:
         # the test passes up to tol short of the points (a sparse cloud's gaps: tol 0.013 on 2,000 bunny points,

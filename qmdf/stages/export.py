@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
-from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, file_kind
+from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, RAYS, file_kind
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -54,6 +54,7 @@ class Export(Stage):
         "input_info": JSON,
         "sheet": MAT,
         "sheet_stats": JSON,
+        "medial_rays": RAYS,
     }
     outputs = {
         "mat": MAT,

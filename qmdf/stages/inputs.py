@@ -26,15 +26,21 @@ def radius_data(info: dict, load_surface, load_points):
 
 
 def input_surface_balls(ctx: StageContext, field, mesh, points):
-    """``surface_balls_of`` on a stage's inputs."""
-    return surface_balls_of(field, mesh, points, (lambda: ctx.load("points")) if ctx.has("points") else None)
+    """``surface_balls_of`` on a stage's inputs, train's ``medial_rays`` reused where the run has them."""
+    return surface_balls_of(
+        field,
+        mesh,
+        points,
+        (lambda: ctx.load("points")) if ctx.has("points") else None,
+        ctx.load("medial_rays") if ctx.has("medial_rays") else None,
+    )
 
 
-def surface_balls_of(field, mesh, points, load_samples):
+def surface_balls_of(field, mesh, points, load_samples, rays: dict | None = None):
     """The data's medial balls behind the surface samples (``medial.coverage.surface_balls``): on a mesh (``mesh``
     from ``input_data``) the run's sampled points (``load_samples()``; None: 20k new ones), their normals turned
     by the winding number; on a cloud (``points``) the input points with the learned sdf's gradient as normals,
-    centres kept where the field says inside."""
+    centres kept where the field says inside. ``rays``: train's medial rays of those samples (mesh only)."""
     from qmdf.medial.coverage import surface_balls
 
     if mesh is not None:
@@ -44,6 +50,6 @@ def surface_balls_of(field, mesh, points, load_samples):
             from qmdf.geometry.sampling import sample_surface
 
             samples = sample_surface(*mesh, 20_000, np.random.default_rng(0))
-        return surface_balls(samples.points, samples.normals, mesh)
+        return surface_balls(samples.points, samples.normals, mesh, rays=rays)
     grad = field.evaluate(points, grad=True)["sdf_grad"].astype(np.float64)
     return surface_balls(points, grad, is_inside=lambda q: field.evaluate(q)["sdf"] < 0)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS
+from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS, RAYS
 from qmdf.medial.radii import RADIUS_SOURCES
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -113,7 +113,13 @@ class Sheet(Stage):
 
     Config = SheetConfig
     inputs = {"covering_grid": GRID, "membrane": MESH, "field": FIELD}
-    optional_inputs = {"surface": MESH, "points": POINTS, "input_info": JSON, "feature_points": POINTS}
+    optional_inputs = {
+        "surface": MESH,
+        "points": POINTS,
+        "input_info": JSON,
+        "feature_points": POINTS,
+        "medial_rays": RAYS,
+    }
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;

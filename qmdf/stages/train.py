@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from qmdf import schema
-from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS
+from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS, RAYS
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -148,9 +148,10 @@ class Train(Stage):
     inputs = {"points": POINTS, "normalization": NORMALIZATION}
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
+    optional_outputs = {"medial_rays": RAYS}
     # 2: seeded weights; 3: supervision routes; 4: Poisson proxy of clouds; 5: mesh rays along smooth normals;
-    # 6: axis_q's p999 and max
-    version = "6"
+    # 6: axis_q's p999 and max; 7: the mesh route's medial rays saved (sheet's and export's coverage reuse them)
+    version = "7"
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
@@ -169,6 +170,17 @@ class Train(Stage):
         cfg: TrainConfig = ctx.cfg
         points = ctx.load("points").points
         sup = supervise(ctx, cfg)
+        if sup.route == "mesh" and sup.stats.get("mesh_rays") == "smooth":
+            # the data's medial ball behind each sample, as coverage measures them: measured once (teacup: 6 s)
+            ctx.save(
+                "medial_rays",
+                {
+                    "origins": points,
+                    "directions": sup.ray_normals,
+                    "radii": sup.radii,
+                    "tol": sup.stats["ray_tolerance"],
+                },
+            )
         params = dict(cfg.backbones.get(cfg.backbone) or {})
         torch.manual_seed(ctx.seed)  # the initial weights (and Fourier frequencies) too: the same seed, the same field
         sampler = StepSampler(sup, cfg.surface_batch, cfg.volume_batch, ctx.seed)
