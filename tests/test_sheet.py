@@ -265,3 +265,27 @@ def test_coverage_that_fits_worse_is_not_kept():
         runs[name] = (mat, stats)
     assert len(runs["kept"][0].vertices) == len(runs["judged"][0].vertices) + 1
     assert runs["judged"][1]["coverage"]["kept"] is False and runs["judged"][0].radii.max() == 0.05
+
+
+def test_valley_squares_and_edges_are_where_q_is_lowest_across_them():
+    """A slab five nodes thick with q lowest on one node layer: the cubes collapse onto that layer, leaving walls
+    across the slab (squares facing x or y) that only the keep level held; a wall is a valley only where q is
+    lowest across it, and an edge only on the line where q is lowest across both other axes."""
+    from qmdf.medial.sheet import _valley_edges, _valley_squares
+
+    k = 24  # the node layer of the valley
+    slab = (np.abs(np.arange(N) - k) <= 2)[None, None, :] & (R < 0.3)
+    q = np.abs(Z - AX[k]) + 1e-3 * np.hypot(X - AX[20], Y - AX[20])  # one valley layer; one lowest line in it
+    cx = collapse_to_sheet(slab, q, 1.0)  # nothing but the cubes collapses
+    valley = _valley_squares(cx, q)
+    facing_z = cx.square_cells[:, 2] % 2 == 0
+    assert facing_z.sum() > 100 and np.all(cx.nodes[cx.squares[facing_z], 2] == k) and valley[facing_z].all()
+    facing_x = cx.square_cells[:, 0] % 2 == 0
+    at_low_x = np.all(cx.nodes[cx.squares, 0] == 20, axis=1)
+    assert facing_x.sum() > 100 and (facing_x & at_low_x).sum() > 0
+    assert np.array_equal(valley[facing_x], at_low_x[facing_x])
+    edges = _valley_edges(cx, q)
+    along_x = cx.edge_cells[:, 0] % 2 == 1
+    ends = cx.nodes[cx.edges[edges & along_x]]  # (M, 2, 3)
+    assert len(ends) > 5 and np.all(ends[..., 1] == 20) and np.all(ends[..., 2] == k)
+    assert (~edges[along_x]).sum() > 10 * len(ends)

@@ -187,6 +187,45 @@ def _redundant_edges(
     return out
 
 
+def _valley_squares(cx: CubicalComplex, q: np.ndarray) -> np.ndarray:
+    """Squares whose q (their corners' mean) is no higher than that of both parallel squares one node away
+    along their normal: where q has its valley across them. A valley of q flat to within the keep level is
+    several nodes wide (the block's eps raised to 0.021: 285k vertices left, a foam of walls); one layer of it
+    is a valley, the others may collapse."""
+    corners = cx.nodes[cx.squares]  # (S, 4, 3) grid nodes
+    normal = np.argmin(cx.square_cells % 2, axis=1)  # the square's even axis
+    step = np.eye(3, dtype=np.int64)[normal][:, None, :]
+    own = q[tuple(corners.reshape(-1, 3).T)].reshape(-1, 4).mean(1)
+
+    def beside(shift):
+        c = corners + shift
+        ok = np.all((c >= 0) & (c < np.array(q.shape)), axis=(1, 2))
+        out = np.full(len(c), np.inf)
+        out[ok] = q[tuple(c[ok].reshape(-1, 3).T)].reshape(-1, 4).mean(1)
+        return out
+
+    return own <= np.minimum(beside(step), beside(-step))
+
+
+def _valley_edges(cx: CubicalComplex, q: np.ndarray) -> np.ndarray:
+    """Edges whose q is no higher than that of the four parallel edges one node away across them: a curve-like
+    axis runs along them (an edge on a sheet has a flat q beside it, within the sheet)."""
+    ends = cx.nodes[cx.edges]  # (E, 2, 3)
+    axis = np.argmax(cx.edge_cells % 2, axis=1)
+    own = q[tuple(ends.reshape(-1, 3).T)].reshape(-1, 2).mean(1)
+    low = np.full(len(ends), np.inf)
+    eye = np.eye(3, dtype=np.int64)
+    for k in (1, 2):
+        step = eye[(axis + k) % 3][:, None, :]
+        for sign in (1, -1):
+            c = ends + sign * step
+            ok = np.all((c >= 0) & (c < np.array(q.shape)), axis=(1, 2))
+            val = np.full(len(c), np.inf)
+            val[ok] = q[tuple(c[ok].reshape(-1, 3).T)].reshape(-1, 2).mean(1)
+            low = np.minimum(low, val)
+    return own <= low
+
+
 def _lone_edges(cx: CubicalComplex) -> np.ndarray:
     """The 1-cells that are no square's side."""
     return np.sort(cx.edges, axis=1)[edges_off_polygons(cx.edges, cx.squares)]
@@ -203,6 +242,7 @@ def single_sheet(
     valley_share: float = 0.5,
     off_axis: float = 0.75,
     fin_area: float = 0.25,
+    valley_only: bool = True,
 ) -> Sheet:
     """The single sheet of the grid nodes ``inside`` the covering (q at them), placed on the membrane.
 
@@ -210,8 +250,9 @@ def single_sheet(
     (their corners, on average, farther than ``off_axis`` grid steps from the membrane: what the cubes left
     on the covering's outer shell), where they are flat once placed (smaller than ``fin_area`` of a grid square:
     a fin around a curve-like axis, a step across a sheet), or where a square of lower q already covers their
-    placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``). Each
-    release can expose more, so release and collapse repeat until nothing changes."""
+    placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``). With
+    ``valley_only``, squares and edges across which q has no valley are released too (``_valley_squares``,
+    ``_valley_edges``). Each release can expose more, so release and collapse repeat until nothing changes."""
     from qmdf.geometry.inside import mesh_distance
 
     lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
@@ -220,6 +261,8 @@ def single_sheet(
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
     dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
+    across = _valley_squares(cx, q) if valley_only else np.ones(len(cx.squares), bool)
+    along = _valley_edges(cx, q) if valley_only else np.ones(len(cx.edges), bool)
     for _ in range(20):  # until nothing more is released (a released layer can expose the next)
         far = dist > off_axis * h
         s, e = cx.squares, cx.edges
@@ -229,6 +272,10 @@ def single_sheet(
         off_edge |= _redundant_edges(x, e, s, node_q, fin_area * h, 0.75 * h)
         flat = _quad_areas(x, s) < fin_area * float(np.prod(np.sort(spacing)[:2]))
         soft_sq = off_sq | flat | _covered_squares(x, s, ~flat, node_q, 0.5 * h)
+        if across is not None:
+            soft_sq |= ~across
+            off_edge |= ~along
+            across = None
         if not (soft_sq.any() or off_edge.any()):
             break
         col.soften(cx, soft_sq, off_edge)
@@ -255,6 +302,7 @@ def simplified_sheet(
     valley_share: float = 0.5,
     off_axis: float = 0.75,
     fin_area: float = 0.25,
+    valley_only: bool = True,
     target_vertices: int = 3000,
     boundary_weight: float = 1.0,
     max_turn_deg: float = 60.0,
@@ -294,7 +342,17 @@ def simplified_sheet(
     q = np.full(inside.shape, np.inf)
     q[tuple(nodes.T)] = evaluate(grid["lo"] + nodes * spacing)["q"]
     sheet = single_sheet(
-        inside, q, grid["lo"], spacing, membrane_vertices, membrane_faces, grid["eps"], valley_share, off_axis, fin_area
+        inside,
+        q,
+        grid["lo"],
+        spacing,
+        membrane_vertices,
+        membrane_faces,
+        grid["eps"],
+        valley_share,
+        off_axis,
+        fin_area,
+        valley_only,
     )
     radii = radii_of(sheet.vertices)
     stats = {

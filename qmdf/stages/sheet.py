@@ -40,6 +40,13 @@ class SheetConfig:
         doc="placed squares below this share of a grid square's area are "
         "flat: a fin around a curve-like axis or a step across a sheet",
     )
+    valley_only: bool = param(
+        True,
+        doc="also release squares whose q is not a valley across them (below both parallel squares one node "
+        "away) and edges not a valley across both other axes: one layer of a wide flat valley stays (the block: "
+        "43k vertices after simplification -> 9.7k, seams 56k -> 1k; the teacup's seams 669 -> 240, CD before "
+        "coverage 4.09e-4 -> 4.22e-4, HD 12.7e-3 -> 10.1e-3); false: the keep level alone",
+    )
     speck_fraction: float = param(
         0.01,
         ge=0,
@@ -123,8 +130,8 @@ class Sheet(Stage):
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
-    # 7: a vertex outside goes to the surface with radius 0
-    version = "7"
+    # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released
+    version = "8"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -179,6 +186,7 @@ class Sheet(Stage):
             valley_share=cfg.valley_share,
             off_axis=cfg.off_axis,
             fin_area=cfg.fin_area,
+            valley_only=cfg.valley_only,
             target_vertices=cfg.target_vertices,
             boundary_weight=cfg.boundary_weight,
             max_turn_deg=cfg.max_turn_deg,
