@@ -261,8 +261,8 @@ def single_sheet(
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
     dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
-    across = _valley_squares(cx, q) if valley_only else np.ones(len(cx.squares), bool)
-    along = _valley_edges(cx, q) if valley_only else np.ones(len(cx.edges), bool)
+    # masks over this first complex's cells, so applied in the first round only (later rounds only remove cells)
+    off_valley = (~_valley_squares(cx, q), ~_valley_edges(cx, q)) if valley_only else None
     for _ in range(20):  # until nothing more is released (a released layer can expose the next)
         far = dist > off_axis * h
         s, e = cx.squares, cx.edges
@@ -272,10 +272,8 @@ def single_sheet(
         off_edge |= _redundant_edges(x, e, s, node_q, fin_area * h, 0.75 * h)
         flat = _quad_areas(x, s) < fin_area * float(np.prod(np.sort(spacing)[:2]))
         soft_sq = off_sq | flat | _covered_squares(x, s, ~flat, node_q, 0.5 * h)
-        if across is not None:
-            soft_sq |= ~across
-            off_edge |= ~along
-            across = None
+        if off_valley is not None:
+            soft_sq, off_edge, off_valley = soft_sq | off_valley[0], off_edge | off_valley[1], None
         if not (soft_sq.any() or off_edge.any()):
             break
         col.soften(cx, soft_sq, off_edge)
