@@ -187,24 +187,22 @@ def _redundant_edges(
     return out
 
 
+def _mean_q(q: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """The mean q over each cell's corner nodes (C, K, 3); inf where a corner lies off the grid."""
+    ok = np.all((corners >= 0) & (corners < np.array(q.shape)), axis=(1, 2))
+    out = np.full(len(corners), np.inf)
+    out[ok] = q[tuple(corners[ok].reshape(-1, 3).T)].reshape(ok.sum(), -1).mean(1)
+    return out
+
+
 def _valley_squares(cx: CubicalComplex, q: np.ndarray) -> np.ndarray:
     """Squares whose q (their corners' mean) is no higher than that of both parallel squares one node away
     along their normal: where q has its valley across them. A valley of q flat to within the keep level is
     several nodes wide (the block's eps raised to 0.021: 285k vertices left, a foam of walls); one layer of it
     is a valley, the others may collapse."""
     corners = cx.nodes[cx.squares]  # (S, 4, 3) grid nodes
-    normal = np.argmin(cx.square_cells % 2, axis=1)  # the square's even axis
-    step = np.eye(3, dtype=np.int64)[normal][:, None, :]
-    own = q[tuple(corners.reshape(-1, 3).T)].reshape(-1, 4).mean(1)
-
-    def beside(shift):
-        c = corners + shift
-        ok = np.all((c >= 0) & (c < np.array(q.shape)), axis=(1, 2))
-        out = np.full(len(c), np.inf)
-        out[ok] = q[tuple(c[ok].reshape(-1, 3).T)].reshape(-1, 4).mean(1)
-        return out
-
-    return own <= np.minimum(beside(step), beside(-step))
+    step = np.eye(3, dtype=np.int64)[np.argmin(cx.square_cells % 2, axis=1)][:, None, :]  # along the even axis
+    return _mean_q(q, corners) <= np.minimum(_mean_q(q, corners + step), _mean_q(q, corners - step))
 
 
 def _valley_edges(cx: CubicalComplex, q: np.ndarray) -> np.ndarray:
@@ -212,18 +210,9 @@ def _valley_edges(cx: CubicalComplex, q: np.ndarray) -> np.ndarray:
     axis runs along them (an edge on a sheet has a flat q beside it, within the sheet)."""
     ends = cx.nodes[cx.edges]  # (E, 2, 3)
     axis = np.argmax(cx.edge_cells % 2, axis=1)
-    own = q[tuple(ends.reshape(-1, 3).T)].reshape(-1, 2).mean(1)
-    low = np.full(len(ends), np.inf)
     eye = np.eye(3, dtype=np.int64)
-    for k in (1, 2):
-        step = eye[(axis + k) % 3][:, None, :]
-        for sign in (1, -1):
-            c = ends + sign * step
-            ok = np.all((c >= 0) & (c < np.array(q.shape)), axis=(1, 2))
-            val = np.full(len(c), np.inf)
-            val[ok] = q[tuple(c[ok].reshape(-1, 3).T)].reshape(-1, 2).mean(1)
-            low = np.minimum(low, val)
-    return own <= low
+    beside = [_mean_q(q, ends + sign * eye[(axis + k) % 3][:, None, :]) for k in (1, 2) for sign in (1, -1)]
+    return _mean_q(q, ends) <= np.min(beside, axis=0)
 
 
 def _lone_edges(cx: CubicalComplex) -> np.ndarray:
