@@ -289,3 +289,31 @@ def test_valley_squares_and_edges_are_where_q_is_lowest_across_them():
     ends = cx.nodes[cx.edges[edges & along_x]]  # (M, 2, 3)
     assert len(ends) > 5 and np.all(ends[..., 1] == 20) and np.all(ends[..., 2] == k)
     assert (~edges[along_x]).sum() > 10 * len(ends)
+
+
+@pytest.mark.parametrize("hollow", [False, True])
+def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
+    """A disc's covering six node layers thick with an island of nodes left out in its middle (q above eps
+    there, as around a junction of sheets): kept, the collapse would close a pocket around it (chi 2). The void
+    is filled where the sdf reads inside all over it; where the shape is hollow there (sdf > 0), it stays."""
+    from qmdf.medial.sheet import fill_voids, simplified_sheet
+
+    q = np.abs(Z) + np.maximum(R - 0.4, 0)
+    island = np.sqrt(X**2 + Y**2 + Z**2) < H  # the 2 x 2 x 2 nodes around the grid's middle
+    inside = (q < 0.06) & ~island
+    assert island.sum() == 8 and not inside[island].any()
+    sdf_at = lambda p: np.where(np.linalg.norm(p, axis=1) < 2 * H, 1.0 if hollow else -0.1, -0.1)  # noqa: E731
+    filled, stats = fill_voids(inside, lambda nodes: sdf_at(LO + nodes * SPACING) > 0)
+    assert stats["voids"] == 1 and stats["filled"] == (0 if hollow else 1)
+    assert np.array_equal(filled, inside | (island & (not hollow)))
+    v, f = _disc_membrane(0.4)
+    mat, stats = simplified_sheet(
+        {"inside": inside, "lo": LO, "spacing": SPACING, "eps": 0.06},
+        lambda p: {"q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0), "sdf": sdf_at(p)},
+        v,
+        f,
+        lambda x: np.full(len(x), 0.05),
+        target_vertices=0,
+    )
+    assert stats["voids"]["filled"] == (0 if hollow else 1)
+    assert stats["after"]["chi"] == (2 if hollow else 1)

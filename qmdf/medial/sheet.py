@@ -45,6 +45,31 @@ def keep_large_pieces(inside: np.ndarray, share: float) -> np.ndarray:
     return np.isin(label, keep)
 
 
+def fill_voids(inside: np.ndarray, outside_at) -> tuple[np.ndarray, dict]:
+    """The inside nodes with every void of the covering that the shape does not have filled in. A void is a
+    piece of the outside nodes, 26-connected (the complement of a cubical complex of whole cells), that does
+    not reach the grid's border; it is the shape's own (a hollow part) when ``outside_at(void's nodes)`` (a mask)
+    holds at any of its nodes. Why: a covering thick around a junction of sheets can enclose an island of q
+    above eps, and the collapse keeps the homotopy type, so each island became a closed pocket of the sheet
+    (the block, 2026-12-02: b2 = 3 where a solid's medial axis has none, chi 1 against -2)."""
+    from scipy import ndimage
+
+    enclosed = ndimage.binary_fill_holes(inside, structure=np.ones((3, 3, 3), bool)) & ~inside
+    stats = {"voids": 0, "filled": 0, "filled_nodes": 0}
+    if not enclosed.any():
+        return inside, stats
+    label, n = ndimage.label(enclosed, structure=np.ones((3, 3, 3), bool))
+    nodes = np.argwhere(label)
+    own = outside_at(nodes)
+    shape_void = np.zeros(n + 1, bool)
+    shape_void[label[tuple(nodes[own].T)]] = True
+    fill = ~shape_void
+    fill[0] = False
+    out = inside | fill[label]
+    stats.update(voids=int(n), filled=int(fill.sum()), filled_nodes=int((out & ~inside).sum()))
+    return out, stats
+
+
 def node_stride(inside: np.ndarray, max_nodes: int) -> int:
     """The smallest k with at most ``max_nodes`` of every k-th grid node inside (the collapse's cost follows the
     node count)."""
@@ -290,6 +315,7 @@ def simplified_sheet(
     off_axis: float = 0.75,
     fin_area: float = 0.25,
     valley_only: bool = True,
+    fill_pockets: bool = True,
     target_vertices: int = 3000,
     boundary_weight: float = 1.0,
     max_turn_deg: float = 60.0,
@@ -302,8 +328,8 @@ def simplified_sheet(
 ):
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
-    ``speck_fraction`` of the largest dropped, q from ``evaluate(points)["q"]``, collapsed onto the membrane
-    (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
+    ``speck_fraction`` of the largest dropped, with ``fill_pockets`` its voids inside the shape filled
+    (``fill_voids``), q and sdf from ``evaluate(points)``, collapsed onto the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under
     the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto
     the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last,
     ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to
@@ -325,6 +351,9 @@ def simplified_sheet(
         from qmdf.errors import QmdfError
 
         raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
+    voids = {"voids": 0, "filled": 0, "filled_nodes": 0}
+    if fill_pockets:
+        inside, voids = fill_voids(inside, lambda n: evaluate(grid["lo"] + n * spacing)["sdf"] > 0)
     nodes = np.argwhere(inside)
     q = np.full(inside.shape, np.inf)
     q[tuple(nodes.T)] = evaluate(grid["lo"] + nodes * spacing)["q"]
@@ -345,6 +374,7 @@ def simplified_sheet(
     stats = {
         "nodes_inside": int(inside.sum()),
         "grid_stride": stride,
+        "voids": voids,
         "collapse": sheet.stats,
         "before": {
             "vertices": len(sheet.vertices),

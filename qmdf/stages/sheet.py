@@ -47,6 +47,13 @@ class SheetConfig:
         "43k vertices after simplification -> 9.7k, seams 56k -> 1k; the teacup's seams 669 -> 240, CD before "
         "coverage 4.09e-4 -> 4.22e-4, HD 12.7e-3 -> 10.1e-3); false: the keep level alone",
     )
+    fill_pockets: bool = param(
+        True,
+        doc="fill the covering's enclosed voids where the learned sdf is inside everywhere in them before the "
+        "collapse: a covering thick around a junction of sheets encloses islands of higher q, and each became a "
+        "closed pocket of the sheet (the block: chi 1 with 3 pockets against -2); a void that reaches outside "
+        "the shape (a hollow part of it) stays",
+    )
     speck_fraction: float = param(
         0.01,
         ge=0,
@@ -130,8 +137,9 @@ class Sheet(Stage):
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
-    # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released
-    version = "8"
+    # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released;
+    # 9: the covering's voids inside the shape filled
+    version = "9"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -187,6 +195,7 @@ class Sheet(Stage):
             off_axis=cfg.off_axis,
             fin_area=cfg.fin_area,
             valley_only=cfg.valley_only,
+            fill_pockets=cfg.fill_pockets,
             target_vertices=cfg.target_vertices,
             boundary_weight=cfg.boundary_weight,
             max_turn_deg=cfg.max_turn_deg,
