@@ -317,3 +317,75 @@ def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
     )
     assert stats["voids"]["filled"] == (0 if hollow else 1)
     assert stats["after"]["chi"] == (2 if hollow else 1)
+
+
+def test_cubical_euler_against_known_solids_and_the_complex_itself():
+    from qmdf.medial.thinning import _fill_cells, _read_complex, cubical_euler
+
+    ball = np.zeros((8, 8, 8), bool)
+    ball[1:7, 1:7, 1:7] = True
+    shell = ball.copy()
+    shell[3:5, 3:5, 3:5] = False  # an enclosed void: b2 = 1
+    ring = ball.copy()
+    ring[3:5, 3:5, :] = False  # a hole through: b1 = 1
+    assert [cubical_euler(m) for m in (ball, shell, ring)] == [1, 2, 0]
+    rng = np.random.default_rng(0)
+    for _ in range(4):  # brute force: every cell of the complex built and counted
+        m = rng.random((7, 8, 6)) < 0.6
+        cells = np.zeros(tuple(2 * np.array(m.shape) - 1), np.uint8)
+        _fill_cells(m, cells)
+        assert cubical_euler(m) == _read_complex(cells, np.zeros(3, np.int64)).euler
+
+
+def _ring_with_bar():
+    """q of a circle (radius 0.3 in z = 0) and of a bar across its hole whose valley reads 0.04: the nodes below
+    a level under 0.04 are a ring (chi 0), above it a theta (chi -1)."""
+    ring = np.hypot(R - 0.3, Z)
+    bar = np.hypot(Y, Z) + np.maximum(np.abs(X) - 0.3, 0) + 0.04
+    return np.minimum(ring, bar)
+
+
+def test_the_level_with_the_shapes_topology_is_the_highest_one_below_a_bridge():
+    from qmdf.medial.sheet import level_with_topology
+
+    q = _ring_with_bar()
+    level, mask, scan = level_with_topology(q, 0.07, 0, lambda m: m)
+    assert scan[0] == (0.07, -1) and scan[-1][1] == 0
+    assert 0.04 - 0.005 < level < 0.04 + H and np.array_equal(mask, q < level)  # the first level past the bar's
+    assert all(c == -1 for _, c in scan[:-1])
+    level, mask, scan = level_with_topology(q, 0.07, 5, lambda m: m)  # no level has it
+    assert level is None and mask is None and len(scan) == 15
+
+
+def test_the_sheet_takes_the_level_of_the_shapes_topology():
+    from qmdf.medial.sheet import simplified_sheet
+
+    q = _ring_with_bar()
+    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
+    grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
+
+    def evaluate(p):
+        x, y, z = p.T
+        ring = np.hypot(np.hypot(x, y) - 0.3, z)
+        bar = np.hypot(y, z) + np.maximum(np.abs(x) - 0.3, 0) + 0.04
+        return {"q": np.minimum(ring, bar), "sdf": np.full(len(p), -0.1)}
+
+    args = (grid, evaluate, np.asarray(tube.vertices), np.asarray(tube.faces), lambda x: np.full(len(x), 0.05))
+    _, plain = simplified_sheet(*args, target_vertices=0)
+    assert plain["after"]["chi"] == -1 and plain["level"] is None
+    _, matched = simplified_sheet(*args, target_vertices=0, target_chi=0)
+    assert matched["after"]["chi"] == 0 and matched["level"]["eps"] < 0.04 + H
+    assert matched["after"]["faces"] == 0  # the ring's polyline, the bar gone
+
+
+def test_the_solid_euler_characteristic_of_a_closed_mesh_and_none_of_an_open_one():
+    from qmdf.stages.inputs import solid_euler
+
+    def of(m):
+        return solid_euler((np.asarray(m.vertices), np.asarray(m.faces)))
+
+    assert of(trimesh.creation.icosphere(2)) == 1
+    assert of(trimesh.creation.torus(0.3, 0.1)) == 0
+    cut = trimesh.creation.icosphere(2)
+    cut.update_faces(np.arange(len(cut.faces)) > 3)
+    assert of(cut) is None and solid_euler(None) is None

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from qmdf.geometry.metrics import edges_off_polygons
-from qmdf.medial.thinning import Collapse, CubicalComplex
+from qmdf.medial.thinning import Collapse, CubicalComplex, cubical_euler
 
 
 @dataclass
@@ -68,6 +68,39 @@ def fill_voids(inside: np.ndarray, outside_at) -> tuple[np.ndarray, dict]:
     out = inside | fill[label]
     stats.update(voids=int(n), filled=int(fill.sum()), filled_nodes=int((out & ~inside).sum()))
     return out, stats
+
+
+def level_with_topology(
+    q: np.ndarray,
+    eps: float,
+    target_chi: int,
+    prepare,
+    levels: int = 15,
+    lowest: float = 0.3,
+) -> tuple[float | None, np.ndarray | None, list]:
+    """The highest of ``levels`` levels from ``eps`` down to ``lowest * eps`` whose solid, the nodes with q below
+    it after ``prepare(mask)`` (specks dropped, voids filled), has Euler characteristic ``target_chi`` (the
+    shape's: the collapse and the simplification keep it): (level, its prepared mask, the scan as (level, chi)
+    pairs); (None, None, scan) where none has. Why: eps raised to the field's noise floor on its axis is too thick
+    where two parts of the axis come close (the kitten at 0.047: a bridge, chi -1 against 0; right from 0.040 to
+    0.033, a handle broken below), and too thin where q's valley stays high on a branch (holes); the highest
+    level of the right topology keeps the covering thick where it can be."""
+    scan = []
+    for level in eps * np.linspace(1.0, lowest, levels):
+        mask = prepare(q < level)
+        chi = cubical_euler(mask)
+        scan.append((float(level), int(chi)))
+        if chi == target_chi:
+            return float(level), mask, scan
+    return None, None, scan
+
+
+def _crop(mask: np.ndarray) -> tuple[tuple[slice, ...], np.ndarray]:
+    """The box around ``mask``'s true entries with one node of margin (a void inside stays enclosed in it), as
+    slices and its lowest index."""
+    idx = np.argwhere(mask)
+    lo, hi = np.maximum(idx.min(0) - 1, 0), np.minimum(idx.max(0) + 2, np.array(mask.shape))
+    return tuple(slice(a, b) for a, b in zip(lo, hi)), lo
 
 
 def node_stride(inside: np.ndarray, max_nodes: int) -> int:
@@ -316,6 +349,7 @@ def simplified_sheet(
     fin_area: float = 0.25,
     valley_only: bool = True,
     fill_pockets: bool = True,
+    target_chi: int | None = None,
     target_vertices: int = 3000,
     boundary_weight: float = 1.0,
     max_turn_deg: float = 60.0,
@@ -329,17 +363,19 @@ def simplified_sheet(
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
     ``speck_fraction`` of the largest dropped, with ``fill_pockets`` its voids inside the shape filled
-    (``fill_voids``), q and sdf from ``evaluate(points)``, collapsed onto the membrane (``single_sheet``), radii
-    from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0: not) under the spherical quadric error,
-    and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis; vertices within
-    ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last, ``refine_of(vertices, radii,
-    lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope falls
-    short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
-    MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
-    1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
-    MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
-    sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Returns the
-    ``MedialMesh`` and its stats (before and after simplification)."""
+    (``fill_voids``), q and sdf from ``evaluate(points)``, with ``target_chi`` the nodes below the highest level
+    whose solid has that Euler characteristic (``level_with_topology``; none: the covering's nodes), collapsed onto
+    the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0:
+    not) under the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each
+    vertex moved onto the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place
+    through both. Last, ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up
+    to ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``), and a second
+    simplification, the added vertices fixed, brings the MAT back to ``target_vertices`` (then centred again): on
+    the bunny 3,000 + 1,000 -> 3,000 vertices kept CD 1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices,
+    radii, lone edges, faces) -> CD`` against the data, the MAT before coverage is kept where coverage and the
+    second simplification made it worse (the exact ellipsoid's sheet, already within 1e-3 of its surface
+    everywhere: CD 1.06e-4 before, 1.40e-4 after). Returns the ``MedialMesh`` and its stats (before and after
+    simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -351,20 +387,41 @@ def simplified_sheet(
         from qmdf.errors import QmdfError
 
         raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
-    voids = {"voids": 0, "filled": 0, "filled_nodes": 0}
-    if fill_pockets:
-        inside, voids = fill_voids(inside, lambda n: evaluate(grid["lo"] + n * spacing)["sdf"] > 0)
+    box, first = _crop(inside)
+    inside, lo = inside[box], np.asarray(grid["lo"]) + first * spacing
     nodes = np.argwhere(inside)
     q = np.full(inside.shape, np.inf)
-    q[tuple(nodes.T)] = evaluate(grid["lo"] + nodes * spacing)["q"]
+    q[tuple(nodes.T)] = evaluate(lo + nodes * spacing)["q"]
+    voids: list[dict] = []
+
+    def prepare(mask):
+        mask = keep_large_pieces(mask, speck_fraction)
+        if fill_pockets:
+            mask, filled = fill_voids(mask, lambda n: evaluate(lo + n * spacing)["sdf"] > 0)
+            voids.append(filled)
+        return mask
+
+    eps = float(grid["eps"])
+    level = None
+    if target_chi is not None:
+        found, mask, scan = level_with_topology(q, eps, target_chi, prepare)
+        level = {"target_chi": int(target_chi), "eps": found, "scan": scan}
+        if found is not None:
+            inside, eps = mask, found
+    if level is None or level["eps"] is None:
+        inside = prepare(inside)
+    new = np.argwhere(inside & ~np.isfinite(q))  # voids filled: their q too
+    if len(new):
+        q[tuple(new.T)] = evaluate(lo + new * spacing)["q"]
+    q[~inside] = np.inf
     sheet = single_sheet(
         inside,
         q,
-        grid["lo"],
+        lo,
         spacing,
         membrane_vertices,
         membrane_faces,
-        grid["eps"],
+        eps,
         valley_share,
         off_axis,
         fin_area,
@@ -374,7 +431,8 @@ def simplified_sheet(
     stats = {
         "nodes_inside": int(inside.sum()),
         "grid_stride": stride,
-        "voids": voids,
+        "voids": voids[-1] if voids else None,
+        "level": level,
         "collapse": sheet.stats,
         "before": {
             "vertices": len(sheet.vertices),

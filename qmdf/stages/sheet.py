@@ -15,7 +15,7 @@ from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS, RAYS
 from qmdf.medial.radii import RADIUS_SOURCES
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
-from qmdf.stages.inputs import input_data, input_surface_balls
+from qmdf.stages.inputs import input_data, input_surface_balls, solid_euler
 
 
 @dataclass
@@ -53,6 +53,13 @@ class SheetConfig:
         "collapse: a covering thick around a junction of sheets encloses islands of higher q, and each became a "
         "closed pocket of the sheet (the block: chi 1 with 3 pockets against -2); a void that reaches outside "
         "the shape (a hollow part of it) stays",
+    )
+    match_topology: bool = param(
+        True,
+        doc="where the input is a closed mesh (its solid's Euler characteristic known: half the surface's), "
+        "collapse the nodes below the highest of 15 levels from the covering's eps down to 0.3 eps whose solid has "
+        "that Euler characteristic (the kitten at eps 0.047: chi -1, a bridge between two parts of the axis; "
+        "at 0.040 chi 0 as its genus 1 implies); no such level: the covering's nodes, with a warning",
     )
     speck_fraction: float = param(
         0.01,
@@ -138,8 +145,8 @@ class Sheet(Stage):
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
     # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released;
-    # 9: the covering's voids inside the shape filled
-    version = "9"
+    # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology
+    version = "10"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -148,7 +155,7 @@ class Sheet(Stage):
 
         cfg: SheetConfig = ctx.cfg
         field = ctx.load("field")
-        mesh, points = input_data(ctx) if cfg.radius == "data" else (None, None)
+        mesh, points = input_data(ctx)
         tips = ctx.load("feature_points").points if ctx.has("feature_points") else None
         membrane = ctx.load("membrane")
         centre_of = refine_of = None
@@ -196,6 +203,7 @@ class Sheet(Stage):
             fin_area=cfg.fin_area,
             valley_only=cfg.valley_only,
             fill_pockets=cfg.fill_pockets,
+            target_chi=solid_euler(mesh) if cfg.match_topology else None,
             target_vertices=cfg.target_vertices,
             boundary_weight=cfg.boundary_weight,
             max_turn_deg=cfg.max_turn_deg,
@@ -206,6 +214,23 @@ class Sheet(Stage):
             refine_vertices=cfg.coverage_vertices,
             fit_of=fit_of,
         )
+        level = stats.get("level")
+        if level and level["eps"] is None:
+            ctx.log.warning(
+                "sheet: no level of q from eps %.4g down gives the solid the input's Euler characteristic %d "
+                "(scan: %s); the covering's nodes are collapsed as they are",
+                level["scan"][0][0],
+                level["target_chi"],
+                ", ".join(f"{e:.4f}: {c}" for e, c in level["scan"]),
+            )
+        elif level:
+            ctx.log.info(
+                "sheet: the nodes below q = %.4g collapsed, the highest level whose solid has the input's Euler "
+                "characteristic %d (covering's eps %.4g; sheet.match_topology)",
+                level["eps"],
+                level["target_chi"],
+                level["scan"][0][0],
+            )
         c = stats.get("coverage")
         if c and "shortfall_before" in c:
             ctx.log.info(
