@@ -306,6 +306,22 @@ def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(comp
     assert ".partial" not in named and Path(named).is_file()
 
 
+def test_a_sheet_that_fits_far_worse_than_the_membrane_is_not_the_mat(compose_cfg, tmp_path, caplog):
+    """Three vertices of the torus's circle, compact as asked, are a triangle of cones whose envelope misses most
+    of the tube: export writes the membrane as the MAT, with a warning; with the default budget the sheet (a
+    closed polyline) fits and is the MAT."""
+    res = Pipeline(
+        compose_cfg(*CHAIN, "sheet.target_vertices=3", "sheet.coverage_vertices=0"), tmp_path / "run", tmp_path
+    ).run()
+    assert len(res.load("sheet").vertices) == 3 and res.load("sheet_stats")["compact"] is True
+    assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
+    assert "fits the data" in caplog.text and "worse than the membrane's" in caplog.text
+    caplog.clear()
+    res = Pipeline(compose_cfg(*CHAIN), tmp_path / "default", tmp_path).run()
+    assert len(res.load("mat").faces) == 0 and len(res.load("mat").vertices) == len(res.load("sheet").vertices)
+    assert "worse than the membrane's" not in caplog.text
+
+
 def test_the_eps_floor_is_the_axis_q_noise_plus_a_margin_of_grid_cells():
     from qmdf.medial.covering import eps_floor
 

@@ -225,6 +225,7 @@ def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surfa
         "oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000, proxy="points"
     )
     assert proxy.stats["proxy"] == "poisson" and points.stats["proxy"] == "points"
+    assert proxy.stats["proxy_surface"]["solid_euler"] == 0  # the solid torus's, for sheet.match_topology
     assert proxy.ray_origins is not None and len(proxy.ray_origins) == len(proxy.radii) > len(pts)
     known = np.isfinite(proxy.sdf)
     assert known.all()

@@ -39,6 +39,7 @@ from qmdf.geometry.inside import (
 )
 from qmdf.geometry.medial_radius import inward_medial_radii, mesh_outward_normals, mesh_ray_normals
 from qmdf.geometry.normals import estimate_oriented_normals, local_spacing, orient_by_winding, pca_normals
+from qmdf.geometry.metrics import solid_euler
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
 
@@ -130,7 +131,7 @@ def build_supervision(
             stats["proxy"] = "points"
         if proxy_mesh is not None:
             pv, pf = proxy_mesh
-            stats["proxy_surface"] = {"vertices": int(len(pv)), "faces": int(len(pf))}
+            stats["proxy_surface"] = {"vertices": int(len(pv)), "faces": int(len(pf)), "solid_euler": solid_euler(pf)}
             # the rays start on the proxy, from many more points than a sparse cloud has: an inside sample's mf is the
             # radius behind its closest surface point, and 2,000 rays on the bunny left it noisy (eps raised to 0.068)
             count = max(len(points), min(proxy_rays, int(volume_samples * ray_fraction)))

@@ -122,6 +122,16 @@ def is_closed_surface(faces: np.ndarray) -> bool:
     return bool(len(counts)) and bool(np.all(counts == 2))
 
 
+def solid_euler(faces: np.ndarray) -> int | None:
+    """The Euler characteristic of the solid a closed triangle mesh bounds: half its surface's (true of every
+    compact 3-manifold with boundary); None for a mesh with a boundary or a non-manifold edge."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if not is_closed_surface(f):
+        return None
+    chi = euler_surface(len(np.unique(f)), f)
+    return chi // 2 if chi % 2 == 0 else None
+
+
 def medial_edges(edges: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Every edge of a medial mesh once: its lone edges and its faces' edges."""
     e = np.concatenate([np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1), unique_edges(faces)])

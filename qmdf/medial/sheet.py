@@ -351,6 +351,7 @@ def simplified_sheet(
     fill_pockets: bool = True,
     target_chi: int | None = None,
     target_vertices: int = 3000,
+    compact_slack: float = 1.5,
     boundary_weight: float = 1.0,
     max_turn_deg: float = 60.0,
     tips: np.ndarray | None = None,
@@ -365,17 +366,17 @@ def simplified_sheet(
     ``speck_fraction`` of the largest dropped, with ``fill_pockets`` its voids inside the shape filled
     (``fill_voids``), q and sdf from ``evaluate(points)``, with ``target_chi`` the nodes below the highest level
     whose solid has that Euler characteristic (``level_with_topology``; none: the covering's nodes), collapsed onto
-    the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices`` (0:
-    not) under the spherical quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each
-    vertex moved onto the axis; vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place
-    through both. Last, ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up
-    to ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``), and a second
-    simplification, the added vertices fixed, brings the MAT back to ``target_vertices`` (then centred again): on
-    the bunny 3,000 + 1,000 -> 3,000 vertices kept CD 1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices,
-    radii, lone edges, faces) -> CD`` against the data, the MAT before coverage is kept where coverage and the
-    second simplification made it worse (the exact ellipsoid's sheet, already within 1e-3 of its surface
-    everywhere: CD 1.06e-4 before, 1.40e-4 after). Returns the ``MedialMesh`` and its stats (before and after
-    simplification)."""
+    the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices``
+    (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical quadric error, and last,
+    with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis; vertices within
+    ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last, ``refine_of(vertices, radii,
+    lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope falls
+    short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
+    MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
+    1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
+    MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
+    sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Returns the
+    ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -466,9 +467,13 @@ def simplified_sheet(
         v, radii, e, f, stats["simplify"] = simplify(v, radii, e, f, near_tips(v))
     if centre_of is not None:
         v, radii, stats["centred"] = centre(v, radii)
+
+    def compact(n):
+        return not target_vertices or n <= compact_slack * target_vertices
+
     if refine_of is not None and refine_vertices > 0:
-        if target_vertices and len(v) > target_vertices:
-            stats["coverage"] = {"added": 0, "skipped": "the simplification stopped above target_vertices"}
+        if not compact(len(v)):
+            stats["coverage"] = {"added": 0, "skipped": "the sheet is not compact (simplification stopped early)"}
         else:
             n0, before = len(v), (v, radii, e, f)
             v, radii, e, f, stats["coverage"] = refine_of(v, radii, e, f, refine_vertices)
@@ -487,6 +492,7 @@ def simplified_sheet(
                 if cd_after > cd_before:
                     v, radii, e, f = before
     mat = MedialMesh(v, radii, e, f).with_face_edges()
+    stats["compact"] = compact(len(v))
     stats["after"] = {
         "vertices": len(v),
         "edges": int(len(mat.edges)),

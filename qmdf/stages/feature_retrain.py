@@ -49,7 +49,7 @@ class FeatureRetrain(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}  # the supervision route, as train's
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
-    version = "2"  # 2: bisector walks checked against the data's distance and inside
+    version = "3"  # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
@@ -121,6 +121,7 @@ class FeatureRetrain(Stage):
             "feature_mf_after": float(abs(after["mf"]).mean()),
             "history": module.history,
             "axis_q": axis,
+            "supervision": sup.stats,  # as train's: the route's record (a cloud's Poisson surface's topology)
         }
         ctx.save("training", stats)
         ctx.log.info(

@@ -25,15 +25,17 @@ def radius_data(info: dict, load_surface, load_points):
     return None, load_points().points if load_points is not None else None
 
 
-def solid_euler(mesh: tuple[np.ndarray, np.ndarray] | None) -> int | None:
-    """The Euler characteristic of the solid a closed mesh (``input_data``'s) bounds, half its surface's (every
-    compact 3-manifold's); None for no mesh or one with a boundary (its solid is not known)."""
-    from qmdf.geometry.metrics import euler_surface, is_closed_surface
+def known_solid_euler(ctx: StageContext, mesh: tuple[np.ndarray, np.ndarray] | None) -> int | None:
+    """The Euler characteristic of the input's solid where the run knows it: a closed input mesh's
+    (``input_data``'s), else that of train's closed Poisson surface of a cloud, whose sign the field learned;
+    None otherwise."""
+    from qmdf.geometry.metrics import solid_euler
 
-    if mesh is None or not is_closed_surface(mesh[1]):
-        return None
-    chi = euler_surface(len(np.unique(mesh[1])), mesh[1])
-    return chi // 2 if chi % 2 == 0 else None
+    if mesh is not None:
+        return solid_euler(mesh[1])
+    if ctx.has("training"):
+        return ((ctx.load("training").get("supervision") or {}).get("proxy_surface") or {}).get("solid_euler")
+    return None
 
 
 def input_surface_balls(ctx: StageContext, field, mesh, points):

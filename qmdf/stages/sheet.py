@@ -15,7 +15,7 @@ from qmdf.artifacts import FIELD, GRID, JSON, MAT, MESH, POINTS, RAYS
 from qmdf.medial.radii import RADIUS_SOURCES
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
-from qmdf.stages.inputs import input_data, input_surface_balls, solid_euler
+from qmdf.stages.inputs import input_data, input_surface_balls, known_solid_euler
 
 
 @dataclass
@@ -56,7 +56,8 @@ class SheetConfig:
     )
     match_topology: bool = param(
         True,
-        doc="where the input is a closed mesh (its solid's Euler characteristic known: half the surface's), "
+        doc="where the input's solid has a known Euler characteristic (a closed mesh's: half the surface's; a "
+        "cloud's closed Poisson surface's, whose sign the field learned), "
         "collapse the nodes below the highest of 15 levels from the covering's eps down to 0.3 eps whose solid has "
         "that Euler characteristic (the kitten at eps 0.047: chi -1, a bridge between two parts of the axis; "
         "at 0.040 chi 0 as its genus 1 implies); no such level: the covering's nodes, with a warning",
@@ -140,6 +141,7 @@ class Sheet(Stage):
         "input_info": JSON,
         "feature_points": POINTS,
         "medial_rays": RAYS,
+        "training": JSON,
     }
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
@@ -203,8 +205,9 @@ class Sheet(Stage):
             fin_area=cfg.fin_area,
             valley_only=cfg.valley_only,
             fill_pockets=cfg.fill_pockets,
-            target_chi=solid_euler(mesh) if cfg.match_topology else None,
+            target_chi=known_solid_euler(ctx, mesh) if cfg.match_topology else None,
             target_vertices=cfg.target_vertices,
+            compact_slack=cfg.compact_slack,
             boundary_weight=cfg.boundary_weight,
             max_turn_deg=cfg.max_turn_deg,
             tips=tips,
@@ -252,7 +255,6 @@ class Sheet(Stage):
         elif c is not None:
             ctx.log.info("coverage: nothing added (%s)", c.get("skipped", "no budget, samples or edges"))
         v = len(mat.vertices)
-        stats["compact"] = not cfg.target_vertices or v <= cfg.compact_slack * cfg.target_vertices
         if not stats["compact"]:
             ctx.log.warning(
                 "the single sheet is not compact: simplification stopped at %d vertices (target %d; the "

@@ -151,7 +151,8 @@ class Train(Stage):
     optional_outputs = {"medial_rays": RAYS}
     # 2: seeded weights; 3: supervision routes; 4: Poisson proxy of clouds; 5: mesh rays along smooth normals;
     # 6: axis_q's p999 and max; 7: the mesh route's medial rays saved (sheet's and export's coverage reuse them)
-    version = "7"
+    # 8: a cloud's Poisson surface's solid Euler characteristic recorded (sheet.match_topology)
+    version = "8"
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
