@@ -50,8 +50,8 @@ def fill_voids(inside: np.ndarray, outside_at) -> tuple[np.ndarray, dict]:
     piece of the outside nodes, 26-connected (the complement of a cubical complex of whole cells), that does
     not reach the grid's border; it is the shape's own (a hollow part) when ``outside_at(void's nodes)`` (a mask)
     holds at any of its nodes. Why: a covering thick around a junction of sheets can enclose an island of q
-    above eps, and the collapse keeps the homotopy type, so each island became a closed pocket of the sheet
-    (the block, 2026-12-02: b2 = 3 where a solid's medial axis has none, chi 1 against -2)."""
+    above eps, and the collapse keeps the homotopy type, so each island would become a closed pocket of the sheet
+    (b2 > 0, where the medial axis of a solid without cavities has none)."""
     from scipy import ndimage
 
     enclosed = ndimage.binary_fill_holes(inside, structure=np.ones((3, 3, 3), bool)) & ~inside
@@ -390,15 +390,19 @@ def simplified_sheet(
         raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
     box, first = _crop(inside)
     inside, lo = inside[box], np.asarray(grid["lo"]) + first * spacing
+
+    def at(n):  # the grid's points as the whole grid has them (a rounding off would break q's ties otherwise)
+        return grid["lo"] + (n + first) * spacing
+
     nodes = np.argwhere(inside)
     q = np.full(inside.shape, np.inf)
-    q[tuple(nodes.T)] = evaluate(lo + nodes * spacing)["q"]
+    q[tuple(nodes.T)] = evaluate(at(nodes))["q"]
     voids: list[dict] = []
 
     def prepare(mask):
         mask = keep_large_pieces(mask, speck_fraction)
         if fill_pockets:
-            mask, filled = fill_voids(mask, lambda n: evaluate(lo + n * spacing)["sdf"] > 0)
+            mask, filled = fill_voids(mask, lambda n: evaluate(at(n))["sdf"] > 0)
             voids.append(filled)
         return mask
 
@@ -413,7 +417,7 @@ def simplified_sheet(
         inside = prepare(inside)
     new = np.argwhere(inside & ~np.isfinite(q))  # voids filled: their q too
     if len(new):
-        q[tuple(new.T)] = evaluate(lo + new * spacing)["q"]
+        q[tuple(new.T)] = evaluate(at(new))["q"]
     q[~inside] = np.inf
     sheet = single_sheet(
         inside,

@@ -51,7 +51,7 @@ class SheetConfig:
         True,
         doc="fill the covering's enclosed voids where the learned sdf is inside everywhere in them before the "
         "collapse: a covering thick around a junction of sheets encloses islands of higher q, and each became a "
-        "closed pocket of the sheet (the block: chi 1 with 3 pockets against -2); a void that reaches outside "
+        "closed pocket of the sheet (b2 > 0, chi off by one each); a void that reaches outside "
         "the shape (a hollow part of it) stays",
     )
     match_topology: bool = param(
