@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, RAYS, file_kind
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
 from qmdf.schema import param
@@ -94,7 +93,8 @@ class Export(Stage):
             ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True
         )
         mat = ctx.load("sheet") if use_sheet else membrane
-        balls = input_surface_balls(ctx, field, mesh, points) if ctx.cfg.radius == "data" else None
+        wanted = ctx.cfg.radius == "data" and (use_sheet or ctx.cfg.coverage_vertices)
+        balls = input_surface_balls(ctx, field, mesh, points) if wanted else None
         if use_sheet and balls is not None:
             use_sheet = self._sheet_fits(ctx, mat, membrane, balls)
             mat = mat if use_sheet else membrane
