@@ -253,7 +253,10 @@ def test_coverage_that_fits_worse_is_not_kept():
     for name, fit in (("kept", None), ("judged", lambda v, r, e, f: float(r.max()))):
         mat, stats = simplified_sheet(
             grid,
-            lambda p: {"q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0)},
+            lambda p: {
+                "q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0),
+                "sdf": -0.1 + 0 * p[:, 0],
+            },
             v,
             f,
             lambda x: np.full(len(x), 0.05),

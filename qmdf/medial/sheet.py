@@ -391,34 +391,38 @@ def simplified_sheet(
     box, first = _crop(inside)
     inside, lo = inside[box], np.asarray(grid["lo"]) + first * spacing
 
-    def at(n):  # the grid's points as the whole grid has them (a rounding off would break q's ties otherwise)
-        return grid["lo"] + (n + first) * spacing
+    q, sdf = np.full(inside.shape, np.nan), np.full(inside.shape, np.nan)
 
-    nodes = np.argwhere(inside)
-    q = np.full(inside.shape, np.inf)
-    q[tuple(nodes.T)] = evaluate(at(nodes))["q"]
+    def field_at(n):
+        """q and sdf at grid nodes n (M, 3), each node evaluated once; its point as the whole grid has it (a
+        rounding off would break q's ties on exact fields)."""
+        todo = n[np.isnan(q[tuple(n.T)])]
+        if len(todo):
+            out = evaluate(grid["lo"] + (todo + first) * spacing)
+            q[tuple(todo.T)], sdf[tuple(todo.T)] = out["q"], out["sdf"]
+        return q[tuple(n.T)], sdf[tuple(n.T)]
+
+    field_at(np.argwhere(inside))
     voids: list[dict] = []
 
     def prepare(mask):
         mask = keep_large_pieces(mask, speck_fraction)
         if fill_pockets:
-            mask, filled = fill_voids(mask, lambda n: evaluate(at(n))["sdf"] > 0)
+            mask, filled = fill_voids(mask, lambda n: field_at(n)[1] > 0)
             voids.append(filled)
         return mask
 
     eps = float(grid["eps"])
     level = None
     if target_chi is not None:
-        found, mask, scan = level_with_topology(q, eps, target_chi, prepare)
+        found, mask, scan = level_with_topology(np.where(inside, q, np.inf), eps, target_chi, prepare)
         level = {"target_chi": int(target_chi), "eps": found, "scan": scan}
         if found is not None:
             inside, eps = mask, found
     if level is None or level["eps"] is None:
         inside = prepare(inside)
-    new = np.argwhere(inside & ~np.isfinite(q))  # voids filled: their q too
-    if len(new):
-        q[tuple(new.T)] = evaluate(at(new))["q"]
-    q[~inside] = np.inf
+    field_at(np.argwhere(inside))  # the filled voids' nodes too
+    q = np.where(inside, q, np.inf)
     sheet = single_sheet(
         inside,
         q,
