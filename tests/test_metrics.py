@@ -97,3 +97,20 @@ def test_fold_edges_find_the_rim_of_a_flattened_double_cover():
     folds = M.fold_edges(v, np.array(top + bottom), min_fold_deg=150)
     assert sorted(map(tuple, folds)) == sorted(tuple(sorted((i, (i + 1) % n))) for i in range(n))
     assert len(M.fold_edges(*(lambda s: (s.vertices, s.faces))(trimesh.creation.icosphere()))) == 0
+
+
+@pytest.mark.parametrize("cols, high", [(2, 50), (3, 40_000), (4, 7), (4, 2**20)])
+def test_unique_rows_is_numpys_unique_over_rows(cols, high):
+    from qmdf.geometry.rows import unique_rows
+
+    rng = np.random.default_rng(cols)
+    a = rng.integers(0, high, (3000, cols))
+    a = np.concatenate([a, a[:500]])  # duplicates for certain, whatever the range
+    want = np.unique(a, axis=0, return_inverse=True, return_counts=True)
+    got = unique_rows(a, return_inverse=True, return_counts=True)
+    for w, g in zip(want, got):
+        np.testing.assert_array_equal(g, w)
+    np.testing.assert_array_equal(unique_rows(a), want[0])
+    assert unique_rows(np.zeros((0, 2), np.int64)).shape == (0, 2)
+    with pytest.raises(ValueError):
+        unique_rows(np.zeros((3, 2)))  # floats: not what the key encodes

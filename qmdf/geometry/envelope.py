@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from qmdf.geometry.metrics import edges_off_polygons
+from qmdf.geometry.rows import unique_rows
 
 _EPS = 1e-12
 
@@ -120,7 +121,7 @@ class EnvelopeUnion:
         faces = np.asarray(faces, np.int64).reshape(-1, 3)
         edges = np.asarray(edges, np.int64).reshape(-1, 2)
         edges = edges[edges[:, 0] != edges[:, 1]]
-        edges = np.unique(np.sort(edges, axis=1), axis=0)
+        edges = unique_rows(np.sort(edges, axis=1))
         lone = edges[edges_off_polygons(edges, faces)]
         used = np.zeros(len(self.c), bool)
         used[faces.ravel()] = True

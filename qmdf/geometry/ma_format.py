@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from qmdf.errors import InputError
+from qmdf.geometry.rows import unique_rows
 
 
 @dataclass
@@ -34,7 +35,7 @@ class MedialMesh:
         """The same mesh with every face edge in the edge list (as the format requires), no duplicates."""
         f = self.faces
         all_edges = np.concatenate([self.edges, f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        all_edges = np.unique(np.sort(all_edges, axis=1), axis=0) if len(all_edges) else all_edges
+        all_edges = unique_rows(np.sort(all_edges, axis=1)) if len(all_edges) else all_edges
         return MedialMesh(self.vertices, self.radii, all_edges, f)
 
     def lone_edges(self) -> np.ndarray:
@@ -42,7 +43,7 @@ class MedialMesh:
         from qmdf.geometry.metrics import edges_off_polygons
 
         e = np.sort(self.edges, axis=1)
-        e = np.unique(e[e[:, 0] != e[:, 1]], axis=0) if len(e) else e
+        e = unique_rows(e[e[:, 0] != e[:, 1]]) if len(e) else e
         return e[edges_off_polygons(e, self.faces)]
 
 

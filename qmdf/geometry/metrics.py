@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from qmdf.geometry.rows import unique_rows
+
 CD_DEFINITION = (
     "CD = (mean d(R->G) + mean d(G->R)) / 2 and HD = max(max d(R->G), max d(G->R)), where d is the exact "
     "distance from each of {n} area-uniform samples of one surface to the other surface (R: reconstruction "
@@ -106,7 +108,7 @@ def reconstruction_distances(
 def unique_edges(faces: np.ndarray) -> np.ndarray:
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
+    return unique_rows(np.sort(e, axis=1))
 
 
 def euler_surface(n_vertices: int, faces: np.ndarray) -> int:
@@ -118,7 +120,7 @@ def is_closed_surface(faces: np.ndarray) -> bool:
     """Every edge in exactly two faces."""
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
+    _, counts = unique_rows(e, return_counts=True)
     return bool(len(counts)) and bool(np.all(counts == 2))
 
 
@@ -135,7 +137,7 @@ def solid_euler(faces: np.ndarray) -> int | None:
 def medial_edges(edges: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Every edge of a medial mesh once: its lone edges and its faces' edges."""
     e = np.concatenate([np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1), unique_edges(faces)])
-    return np.unique(e[e[:, 0] != e[:, 1]], axis=0)
+    return unique_rows(e[e[:, 0] != e[:, 1]])
 
 
 def euler_medial_mesh(n_vertices: int, edges: np.ndarray, faces: np.ndarray) -> int:
@@ -148,8 +150,8 @@ def euler_tetrahedral(n_vertices: int, tets: np.ndarray) -> int:
     t = np.sort(np.asarray(tets, np.int64).reshape(-1, 4), axis=1)
     pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
     triples = [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
-    E = np.unique(np.concatenate([t[:, list(p)] for p in pairs]), axis=0)
-    F = np.unique(np.concatenate([t[:, list(q)] for q in triples]), axis=0)
+    E = unique_rows(np.concatenate([t[:, list(p)] for p in pairs]))
+    F = unique_rows(np.concatenate([t[:, list(q)] for q in triples]))
     return int(n_vertices - len(E) + len(F) - len(t))
 
 
@@ -158,7 +160,7 @@ def _face_edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each distinct edge of the faces and how many faces hold it."""
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return np.unique(e, axis=0, return_counts=True)
+    return unique_rows(e, return_counts=True)
 
 
 def single_face_edges(faces: np.ndarray) -> np.ndarray:

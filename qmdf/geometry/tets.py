@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from qmdf.geometry.rows import unique_rows
+
 
 def signed_volumes(v: np.ndarray, t: np.ndarray) -> np.ndarray:
     a, b, c, d = (v[t[:, k]] for k in range(4))
@@ -20,5 +22,5 @@ def boundary_faces(t: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:
     # faces opposite each vertex, ordered so that a positive tet's faces point outward
     f = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
     key = np.sort(f, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = unique_rows(key, return_inverse=True, return_counts=True)
     return f[counts[inv.ravel()] == 1]
