@@ -11,17 +11,20 @@ def field_quality(
 ) -> dict:
     """Sign accuracy over ``samples`` uniform points of the box [-half, half]^3 (the unit box); metric figures
     over those inside deeper than 0.005."""
-    from qmdf.geometry.inside import mesh_signed_distance
+    from qmdf.geometry.inside import mesh_distance, mesh_winding_number
 
     q = np.random.default_rng(seed).uniform(-half, half, (samples, 3))
-    ref = mesh_signed_distance(vertices, faces, q)
+    # the distance only where it is used, inside (the teacup: 3.8 s for all 100k samples)
+    below = mesh_winding_number(vertices, faces, q) > 0.5
+    depth = np.zeros(samples)
+    depth[below] = mesh_distance(vertices, faces, q[below])[0]
+    inside = below & (depth > 0.005)
     out = field.evaluate(q, grad=True)
-    inside = ref < -0.005
     grad = np.linalg.norm(out["sdf_grad"], axis=1)
     return {
-        "sign_accuracy": float(np.mean((out["sdf"] < 0) == (ref < 0))),
+        "sign_accuracy": float(np.mean((out["sdf"] < 0) == below)),
         "grad_sdf_inside": float(grad[inside].mean()) if inside.any() else None,
-        "sdf_error_inside": float(np.abs(out["sdf"][inside] - ref[inside]).mean()) if inside.any() else None,
+        "sdf_error_inside": float(np.abs(out["sdf"][inside] + depth[inside]).mean()) if inside.any() else None,
         "inside_share": float(inside.mean()),
         "samples": samples,
     }
