@@ -72,13 +72,10 @@ def _key(values, si, sj, sk, ti, tj, tk):
     t = (ti, tj, tk)
     s = (si, sj, sk)
     along = 0.0
-    for ax in range(3):
+    for ax in range(3):  # scalars, not lists: a list in this loop was a heap allocation per key
         if t[ax] % 2 == 1:
-            lo = [ti, tj, tk]
-            hi = [ti, tj, tk]
-            lo[ax] -= 1
-            hi[ax] += 1
-            g = abs(_corner_mean(values, hi[0], hi[1], hi[2]) - _corner_mean(values, lo[0], lo[1], lo[2]))
+            di, dj, dk = int(ax == 0), int(ax == 1), int(ax == 2)
+            g = abs(_corner_mean(values, ti + di, tj + dj, tk + dk) - _corner_mean(values, ti - di, tj - dj, tk - dk))
             total += g
             if s[ax] != t[ax]:
                 along = g
@@ -95,10 +92,9 @@ def _cofaces(cells, i, j, k, out):
     for ax in range(3):
         if c[ax] % 2 == 0:
             for d in (-1, 1):
-                p = [i, j, k]
-                p[ax] += d
-                if 0 <= p[ax] < sh[ax] and cells[p[0], p[1], p[2]]:
-                    out[n, 0], out[n, 1], out[n, 2] = p[0], p[1], p[2]
+                pi, pj, pk = i + d * (ax == 0), j + d * (ax == 1), k + d * (ax == 2)
+                if 0 <= c[ax] + d < sh[ax] and cells[pi, pj, pk]:
+                    out[n, 0], out[n, 1], out[n, 2] = pi, pj, pk
                     n += 1
     return n
 
@@ -112,9 +108,7 @@ def _push_free_faces(cells, values, ci, cj, ck, heap, co, faces):
     for ax in range(3):
         if c[ax] % 2 == 1:
             for d in (-1, 1):
-                p = [ci, cj, ck]
-                p[ax] += d
-                faces[nf, 0], faces[nf, 1], faces[nf, 2] = p[0], p[1], p[2]
+                faces[nf, 0], faces[nf, 1], faces[nf, 2] = ci + d * (ax == 0), cj + d * (ax == 1), ck + d * (ax == 2)
                 nf += 1
     for f in range(nf):
         fi, fj, fk = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -219,6 +213,7 @@ class Collapse:
         keep = np.broadcast_to(np.asarray(keep_q, np.float64), inside.shape)[box]
         self.keep_q = np.ascontiguousarray(np.where(sub, keep, np.inf))
         self.softened: np.ndarray | None = None  # None until the first run, which scans every cell
+        self.present: np.ndarray | None = None  # flat indices of the cells left by the last run
 
     def run(self) -> CubicalComplex:
         # after the first run only the softened cells can start a collapse (a full scan of the doubled grid
@@ -227,7 +222,11 @@ class Collapse:
         if self.softened is None or len(seeds):
             _collapse(self.cells, self.values, self.keep_q, seeds)
         self.softened = np.zeros((0, 3), np.int64)
-        return _read_complex(self.cells, self.lo)
+        # a run only removes cells: after the first, the cells left are found among the last run's (a scan of
+        # the whole doubled grid took 0.57 s per run on the teacup, seven runs)
+        flat = self.cells.reshape(-1)
+        self.present = np.flatnonzero(flat) if self.present is None else self.present[flat[self.present] != 0]
+        return _read_complex(self.cells, self.lo, self.present)
 
     def soften(self, complex_: CubicalComplex, squares: np.ndarray, edges: np.ndarray | None = None) -> None:
         """Let the chosen squares (and edges) of ``complex_`` (masks or indices) collapse whatever their q."""
@@ -243,8 +242,11 @@ def collapse_to_sheet(inside: np.ndarray, values: np.ndarray, keep_q: float) -> 
     return Collapse(inside, values, keep_q).run()
 
 
-def _read_complex(cells: np.ndarray, lo: np.ndarray) -> CubicalComplex:
-    idx = np.argwhere(cells)
+def _read_complex(cells: np.ndarray, lo: np.ndarray, present: np.ndarray | None = None) -> CubicalComplex:
+    """The complex of the doubled grid's present cells (``present``: their flat indices, in order, when known)."""
+    if present is None:
+        present = np.flatnonzero(cells)
+    idx = np.column_stack(np.unravel_index(present, cells.shape))
     odd = idx % 2
     dim = odd.sum(1)
     shape = np.array(cells.shape)
