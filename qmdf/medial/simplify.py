@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from qmdf.geometry.rows import unique_rows
 from qmdf.geometry.triangles import face_areas
 
 
@@ -65,18 +66,26 @@ def _best(QA, Qb, Qc, m, a, b):
 
 
 @njit(cache=True)
+def _cross_norm2(p, k):
+    """The cross product of triangle k's two sides from its corner 0 (p: (K, 3, 3)), and its squared length."""
+    ax, ay, az = p[k, 1, 0] - p[k, 0, 0], p[k, 1, 1] - p[k, 0, 1], p[k, 1, 2] - p[k, 0, 2]
+    bx, by, bz = p[k, 2, 0] - p[k, 0, 0], p[k, 2, 1] - p[k, 0, 1], p[k, 2, 2] - p[k, 0, 2]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    return nx, ny, nz, nx * nx + ny * ny + nz * nz
+
+
+@njit(cache=True)
 def _turns_within(p, q, min_cos):
-    """Whether no triangle turns by more than acos(min_cos) from p (K, 3, 3) to q (nor collapses to a line)."""
+    """Whether no triangle turns by more than acos(min_cos) from p (K, 3, 3) to q (nor collapses to a line).
+    Scalars throughout: a small array per triangle was a heap allocation in the collapse loop's hottest test."""
     for k in range(p.shape[0]):
-        u0, u1, u2 = p[k, 1] - p[k, 0], p[k, 2] - p[k, 0], q[k, 1] - q[k, 0]
-        w2 = q[k, 2] - q[k, 0]
-        n0 = np.array([u0[1] * u1[2] - u0[2] * u1[1], u0[2] * u1[0] - u0[0] * u1[2], u0[0] * u1[1] - u0[1] * u1[0]])
-        n1 = np.array([u2[1] * w2[2] - u2[2] * w2[1], u2[2] * w2[0] - u2[0] * w2[2], u2[0] * w2[1] - u2[1] * w2[0]])
-        l0 = np.sqrt(n0 @ n0)
-        l1 = np.sqrt(n1 @ n1)
+        x0, y0, z0, s0 = _cross_norm2(p, k)
+        x1, y1, z1, s1 = _cross_norm2(q, k)
+        l0 = np.sqrt(s0)
+        l1 = np.sqrt(s1)
         if l0 < 1e-20:
             continue
-        if l1 < 1e-20 or (n0 @ n1) < min_cos * l0 * l1:
+        if l1 < 1e-20 or (x0 * x1 + y0 * y1 + z0 * z1) < min_cos * l0 * l1:
             return False
     return True
 
@@ -84,7 +93,7 @@ def _turns_within(p, q, min_cos):
 def _initial_costs(Q: _Quadrics, faces: np.ndarray, edges: np.ndarray):
     """(cost, a, b) of merging the ends of every edge (a < b), all 4x4 systems solved at once."""
     e = np.concatenate([edges, faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = unique_rows(np.sort(e, axis=1))
     e = e[e[:, 0] != e[:, 1]]
     if not len(e):
         return np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -361,7 +370,7 @@ def initial_quadrics(
         if boundary_weight > 0:
             e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
             owner = np.tile(np.arange(len(faces)), 3)
-            _, inv, counts = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
+            _, inv, counts = unique_rows(np.sort(e, axis=1), return_inverse=True, return_counts=True)
             rim = counts[inv.ravel()] == 1
             e, owner = e[rim], owner[rim]
             fn = np.cross(tri[owner, 1] - tri[owner, 0], tri[owner, 2] - tri[owner, 0])
@@ -429,7 +438,7 @@ def simplify_medial_mesh(
     index = np.full(n, -1)
     index[alive] = np.arange(int(alive.sum()))
     out_faces = index[fv[face_alive]].reshape(-1, 3)
-    out_edges = np.unique(index[lone].reshape(-1, 2), axis=0) if len(lone) else np.zeros((0, 2), np.int64)
+    out_edges = unique_rows(index[lone].reshape(-1, 2)) if len(lone) else np.zeros((0, 2), np.int64)
     stats = {
         "vertices_before": n,
         "vertices": int(alive.sum()),
