@@ -122,28 +122,30 @@ def _surface_volume(x, faces, grad):
     return vol
 
 
+@njit(cache=True, inline="always")  # inlined in numba's IR: as a call it ran 1.6x slower
+def _row_product(ptr, idx, val, y, i):
+    """Row i of a CSR matrix times the n x 3 array y, the three coordinates in one pass over the row (each sum in
+    scipy's order)."""
+    ax = ay = az = 0.0
+    for m in range(ptr[i], ptr[i + 1]):
+        j, v = idx[m], val[m]
+        ax += v * y[j, 0]
+        ay += v * y[j, 1]
+        az += v * y[j, 2]
+    return ax, ay, az
+
+
 @njit(cache=True)
 def _add_smoothness_gradient(l_ptr, l_idx, l_val, t_ptr, t_idx, t_val, x, w, coef, g, lap, weighted):
     """lap = L x, weighted = W lap and g += coef * L^T weighted, the Laplacian energy's gradient, in one pass per
     product (L^T as its own CSR, summed in scipy's order, so the result is scipy's to the bit; two scipy
     products and the temporaries took 5 s of the teacup's 3,000 iterations)."""
-    # the three coordinates together: one pass over each row's indices (the sums keep scipy's order per coordinate)
     for i in range(x.shape[0]):
-        ax = ay = az = 0.0
-        for m in range(l_ptr[i], l_ptr[i + 1]):
-            j, v = l_idx[m], l_val[m]
-            ax += v * x[j, 0]
-            ay += v * x[j, 1]
-            az += v * x[j, 2]
+        ax, ay, az = _row_product(l_ptr, l_idx, l_val, x, i)
         lap[i, 0], lap[i, 1], lap[i, 2] = ax, ay, az
         weighted[i, 0], weighted[i, 1], weighted[i, 2] = w[i] * ax, w[i] * ay, w[i] * az
     for i in range(x.shape[0]):
-        ax = ay = az = 0.0
-        for m in range(t_ptr[i], t_ptr[i + 1]):
-            j, v = t_idx[m], t_val[m]
-            ax += v * weighted[j, 0]
-            ay += v * weighted[j, 1]
-            az += v * weighted[j, 2]
+        ax, ay, az = _row_product(t_ptr, t_idx, t_val, weighted, i)
         g[i, 0] += coef * ax
         g[i, 1] += coef * ay
         g[i, 2] += coef * az
