@@ -354,3 +354,24 @@ def test_the_narrow_band_gives_the_full_grids_signs_and_crossings():
     assert np.array_equal(banded.values < 0, full < 0)
     a, b = banded.mesh(), GridLevelSet(full.astype(np.float32), banded.lo, spacing, full.size).mesh()
     assert len(a.faces) == len(b.faces) and np.allclose(np.sort(a.vertices, 0), np.sort(b.vertices, 0), atol=1e-9)
+
+
+def test_smoothness_gradient_is_scipys_laplacian_products_to_the_bit():
+    import scipy.sparse as sp
+
+    from qmdf.medial.contraction import _add_smoothness_gradient
+
+    rng = np.random.default_rng(3)
+    n = 400
+    lap_matrix = (sp.random(n, n, density=0.02, random_state=4) + sp.eye(n)).tocsr()
+    transpose = lap_matrix.T.tocsr()
+    x, w, g0 = rng.normal(size=(n, 3)), rng.random(n), rng.normal(size=(n, 3))
+    g, lap, weighted = g0.copy(), np.zeros((n, 3)), np.zeros((n, 3))
+    _add_smoothness_gradient(
+        lap_matrix.indptr, lap_matrix.indices, lap_matrix.data,
+        transpose.indptr, transpose.indices, transpose.data, x, w, 0.7, g, lap, weighted,
+    )  # fmt: skip
+    expected_lap = lap_matrix @ x
+    assert np.array_equal(lap, expected_lap)
+    assert np.array_equal(weighted, w[:, None] * expected_lap)
+    assert np.array_equal(g, g0 + 0.7 * (transpose @ (w[:, None] * expected_lap)))
