@@ -360,6 +360,7 @@ def simplified_sheet(
     refine_of=None,
     refine_vertices: int = 0,
     fit_of=None,
+    extend_of=None,
 ):
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
@@ -375,7 +376,9 @@ def simplified_sheet(
     MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
     1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
     MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
-    sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Returns the
+    sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Last, with
+    ``extend_of(vertices, radii, lone edges, faces, fixed) -> (vertices, radii, stats)``, the rims are carried out
+    to the axis's end (``medial.rims``), the tips fixed. Returns the
     ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
@@ -499,6 +502,8 @@ def simplified_sheet(
                 stats["coverage"].update(cd_before=cd_before, cd_after=cd_after, kept=bool(cd_after <= cd_before))
                 if cd_after > cd_before:
                     v, radii, e, f = before
+    if extend_of is not None:
+        v, radii, stats["rims"] = extend_of(v, radii, e, f, near_tips(v))
     mat = MedialMesh(v, radii, e, f).with_face_edges()
     stats["compact"] = compact(len(v))
     stats["after"] = {

@@ -7,6 +7,7 @@ MAT; the membrane stays for comparison."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,6 +127,13 @@ class SheetConfig:
         "to a branch the sheet lacks)",
     )
     coverage_rounds: int = param(10, ge=1, doc="rounds of insertion (the envelope is re-measured after each)")
+    extend_rims: bool = param(
+        True,
+        doc="with radius=data: last, each free rim's vertex and curve's end walks out to where the medial axis "
+        "ends (medial.rims; the covering stops short of it), kept only where the envelope fits the data as well "
+        "or better; exact fields, 2,000 vertices: the ellipsoid's CD 1.38e-4 -> 0.75e-4 (HD 1.01e-3 -> 0.56e-3), "
+        "the box's 2.22e-5 -> 1.70e-5",
+    )
 
 
 @register_stage("sheet")
@@ -147,12 +155,14 @@ class Sheet(Stage):
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
     # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released;
-    # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology
-    version = "10"
+    # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology;
+    # 11: rims carried out to the axis's end
+    version = "11"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
-        from qmdf.medial.radii import centre_on_data, inside_test, mat_radii
+        from qmdf.medial.radii import centre_on_data, data_distance, inside_test, mat_radii
+        from qmdf.medial.rims import extend_rims
         from qmdf.medial.sheet import simplified_sheet
 
         cfg: SheetConfig = ctx.cfg
@@ -192,6 +202,18 @@ class Sheet(Stage):
             def fit_of(v, r, e, f):
                 return envelope_fit(v, r, e, f, balls(), np.random.default_rng(ctx.seed))["chamfer"]
 
+        extend_of = None
+        if cfg.extend_rims and cfg.radius == "data":
+
+            def extend_of(v, r, e, f, fixed):
+                distance, _ = data_distance(mesh, points)
+                guard = _data_samples(mesh, points, np.random.default_rng(ctx.seed))
+                t0 = time.perf_counter()
+                v, r, rim_stats = extend_rims(
+                    v, r, e, f, distance, inside_test(field, mesh), fixed=fixed, samples=guard
+                )
+                return v, r, {**rim_stats, "seconds": round(time.perf_counter() - t0, 2)}
+
         mat, stats = simplified_sheet(
             ctx.load("covering_grid"),
             field.evaluate,
@@ -216,6 +238,7 @@ class Sheet(Stage):
             refine_of=refine_of,
             refine_vertices=cfg.coverage_vertices,
             fit_of=fit_of,
+            extend_of=extend_of,
         )
         level = stats.get("level")
         if level and level["eps"] is None:
@@ -254,6 +277,18 @@ class Sheet(Stage):
                 )
         elif c is not None:
             ctx.log.info("coverage: nothing added (%s)", c.get("skipped", "no budget, samples or edges"))
+        rims = stats.get("rims")
+        if rims:
+            ctx.log.info(
+                "rims: %d of %d rim vertices and curve ends walked out to the axis's end (median %.2e, at most "
+                "%.2e; %d sent back by the fit guard) in %.1f s",
+                rims["moved"],
+                rims["rim_vertices"],
+                rims.get("median_step", 0.0),
+                rims.get("max_step", 0.0),
+                rims.get("reverted", 0),
+                rims["seconds"],
+            )
         v = len(mat.vertices)
         if not stats["compact"]:
             ctx.log.warning(
@@ -279,3 +314,13 @@ class Sheet(Stage):
             stats["before"]["vertices"],
             stats["before"]["chi"],
         )
+
+
+def _data_samples(mesh, points, rng: np.random.Generator) -> np.ndarray:
+    """Points on the data's surface for the rims' guard: a mesh's vertices (its corners and sharp edges, which
+    random samples seldom hit) and 20k samples of its faces; a cloud's points."""
+    if mesh is None:
+        return np.asarray(points, np.float64)
+    from qmdf.geometry.sampling import sample_surface
+
+    return np.concatenate([np.asarray(mesh[0], np.float64), sample_surface(*mesh, 20_000, rng).points])
