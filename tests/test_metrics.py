@@ -114,3 +114,12 @@ def test_unique_rows_is_numpys_unique_over_rows(cols, high):
     assert unique_rows(np.zeros((0, 2), np.int64)).shape == (0, 2)
     with pytest.raises(ValueError):
         unique_rows(np.zeros((3, 2)))  # floats: not what the key encodes
+
+
+def test_rim_sides_are_the_sides_of_one_face_with_their_face():
+    from qmdf.geometry.metrics import rim_sides
+
+    faces = np.array([[0, 1, 2], [0, 2, 3], [2, 1, 4]])  # three triangles; sides 0-2 and 1-2 are shared
+    sides, owner = rim_sides(faces)
+    got = sorted((tuple(s), int(o)) for s, o in zip(sides, owner))
+    assert got == [((0, 1), 0), ((1, 4), 2), ((2, 3), 1), ((3, 0), 1), ((4, 2), 2)]

@@ -169,6 +169,15 @@ def single_face_edges(faces: np.ndarray) -> np.ndarray:
     return uniq[counts == 1]
 
 
+def rim_sides(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sides of one face each, as their face has them (unsorted, (K, 2)), and that face's index."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    sides = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    _, inverse, counts = unique_rows(np.sort(sides, axis=1), return_inverse=True, return_counts=True)
+    rim = counts[inverse.ravel()] == 1
+    return sides[rim], np.tile(np.arange(len(f)), 3)[rim]
+
+
 def seam_edges(faces: np.ndarray) -> np.ndarray:
     """Edges of three or more faces: where sheets of a medial mesh meet."""
     uniq, counts = _face_edge_counts(faces)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qmdf.geometry.rows import unique_rows
+from qmdf.geometry.metrics import rim_sides
 
 
 def rim_directions(
@@ -36,12 +36,11 @@ def rim_directions(
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
     direction = np.zeros_like(x)
+    planes = None
     if len(faces):
-        sides = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-        third = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
-        _, inverse, counts = unique_rows(np.sort(sides, axis=1), return_inverse=True, return_counts=True)
-        rim = counts[inverse] == 1
-        a, b, c = sides[rim, 0], sides[rim, 1], third[rim]
+        sides, owner = rim_sides(faces)
+        a, b = sides[:, 0], sides[:, 1]
+        c = faces[owner].sum(1) - a - b  # the owner's third corner
         along = x[b] - x[a]
         normal = np.cross(along, x[c] - x[a])
         out = np.cross(along, normal)  # in the face's plane, perpendicular to the edge
@@ -90,15 +89,16 @@ def _plane_moments(x: np.ndarray, faces: np.ndarray):
     return moments
 
 
-def _walk(x0, along, normal, step, levels, steps, distance, is_inside, flat, s_max, min_cos):
+def _walk(x0, d0, foot0, along, normal, step, levels, steps, distance, is_inside, flat, s_max, min_cos):
     """Walk every point from ``x0`` (as the module doc says) in steps of ``step``, up to ``steps`` of them; then
     ``levels`` - 1 times back one step (the last one may straddle the axis's end, its gain an average) and on in
     steps a quarter as long (8 at most). The direction each time: the spoke to the closest data point projected
     onto the sheet's tangent plane (``normal``, the plane's normal), or a curve's ``along`` (``normal`` zero),
     never back against ``along``, and only while the spoke is within acos(``min_cos``) of
     the plane: a spoke across the sheet (its middle, a seam's side) gives no direction. Returns (points,
-    distances, walked length, whether the length ``s_max`` stopped it)."""
-    x, (d, foot) = x0.copy(), distance(x0)
+    distances, walked length, whether the length ``s_max`` stopped it). ``d0``, ``foot0``: the start's distance and
+    closest point."""
+    x, d, foot = x0.copy(), d0.copy(), foot0.copy()
     s = np.zeros(len(x))
     capped = np.zeros(len(x), bool)
     line = ~np.any(normal != 0, axis=1)
@@ -186,10 +186,12 @@ def extend_rims(
     stats = {"rim_vertices": int(len(index)), "moved": 0}
     if not len(index):
         return v, r, stats
-    d0 = distance(v[index])[0]
+    d0, foot0 = distance(v[index])
     s_max = reach * d0
     end, d_end, walked, capped = _walk(
         v[index],
+        d0,
+        foot0,
         along,
         normal,
         s_max / steps,

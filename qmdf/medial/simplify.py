@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from qmdf.geometry.metrics import rim_sides
 from qmdf.geometry.rows import unique_rows
 from qmdf.geometry.triangles import face_areas
 
@@ -368,11 +369,7 @@ def initial_quadrics(
             Q.add_planes(faces[ok], np.column_stack([n[ok, side], np.ones(int(ok.sum()))]), d[ok, side], area[ok])
         # rims: the plane through the edge, perpendicular to its one face
         if boundary_weight > 0:
-            e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-            owner = np.tile(np.arange(len(faces)), 3)
-            _, inv, counts = unique_rows(np.sort(e, axis=1), return_inverse=True, return_counts=True)
-            rim = counts[inv.ravel()] == 1
-            e, owner = e[rim], owner[rim]
+            e, owner = rim_sides(faces)
             fn = np.cross(tri[owner, 1] - tri[owner, 0], tri[owner, 2] - tri[owner, 0])
             t = x[e[:, 1]] - x[e[:, 0]]
             pn = np.cross(t, fn)
