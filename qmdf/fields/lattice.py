@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 _B = 4  # nodes per block side (the kernels index with shifts by 2 and masks of 3)
 
@@ -49,13 +49,13 @@ def _store(nodes, values, block_id, dims, pool):
         pool[block_id[b], ((i & 3) << 4) | ((j & 3) << 2) | (k & 3)] = values[m]
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _locate(x, lo, h, n_nodes, cell, t, cells, corners):
     """Each point's cell and local coordinates; then make slot 0 hold that cell: keep it, swap in slot 1,
     or (need) load it anew after moving slot 0 to slot 1. Points off the lattice get cell 0 (inside False)."""
     need = np.zeros(cell.shape[0], np.bool_)
     inside = np.ones(cell.shape[0], np.bool_)
-    for n in range(cell.shape[0]):
+    for n in prange(cell.shape[0]):
         for k in range(3):
             u = (x[n, k] - lo[k]) / h
             i = math.floor(u)
@@ -77,10 +77,10 @@ def _locate(x, lo, h, n_nodes, cell, t, cells, corners):
     return need, inside
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _interpolate(t, c, h, q, g):
     """Trilinear value and gradient from corner values c (N, 8; corner bits x, y, z) at local coords t."""
-    for n in range(t.shape[0]):
+    for n in prange(t.shape[0]):
         tx, ty, tz = t[n, 0], t[n, 1], t[n, 2]
         c000, c001, c010, c011 = c[n, 0], c[n, 1], c[n, 2], c[n, 3]
         c100, c101, c110, c111 = c[n, 4], c[n, 5], c[n, 6], c[n, 7]

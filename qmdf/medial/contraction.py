@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from qmdf.errors import QmdfError
 from qmdf.geometry.rows import unique_rows
@@ -81,12 +81,20 @@ class EnclosedVolume:
             (np.ones(self.cells.size), (self.cells.T.ravel(), np.arange(self.cells.size))),
             shape=(n_vertices, self.cells.size),
         )
+        # per vertex, the next two vertices of each face it is a corner of (column slot * n_cells + cell), for
+        # the surface kernel's per-vertex sums
+        self.corner_ptr = self.sum_corners.indptr.astype(np.int64)
+        cell, slot = self.sum_corners.indices % len(self.cells), self.sum_corners.indices // len(self.cells)
+        if self.cells.shape[1] == 3:
+            self.corner_next = np.stack(
+                [self.cells[cell, (slot + 1) % 3], self.cells[cell, (slot + 2) % 3]], -1
+            ).astype(np.int64)
 
     def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         c = self.cells
         if c.shape[1] == 3:
-            grad = np.zeros_like(x)
-            return _surface_volume(x, c, grad), grad
+            grad = np.empty_like(x)
+            return _surface_volume(x, c, self.corner_ptr, self.corner_next, grad), grad
         if c.shape[1] == 4:
             a, b, cc, d = (x[c[:, k]] for k in range(4))
             ab, ac, ad = b - a, cc - a, d - a
@@ -98,27 +106,27 @@ class EnclosedVolume:
         return float((v0 * g0).sum()), self.sum_corners @ np.vstack([g0, g1, g2])
 
 
-@njit(cache=True)
-def _surface_volume(x, faces, grad):
-    """The divergence-theorem volume of a closed surface; its gradient accumulated into grad."""
+@njit(cache=True, parallel=True)
+def _surface_volume(x, faces, corner_ptr, corner_next, grad):
+    """The divergence-theorem volume of a closed surface; its gradient written into grad, each vertex's summed
+    over its corners (``corner_ptr``/``corner_next``: per vertex, CSR, the next two vertices of each face it is a
+    corner of, in the face's order), so the vertices run in parallel with no shared writes."""
     vol = 0.0
-    for f in range(faces.shape[0]):
+    for f in prange(faces.shape[0]):
         i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
-        ax, ay, az = x[i, 0], x[i, 1], x[i, 2]
-        bx, by, bz = x[j, 0], x[j, 1], x[j, 2]
-        cx, cy, cz = x[k, 0], x[k, 1], x[k, 2]
-        # (b x c, c x a, a x b) / 6
-        gx, gy, gz = (by * cz - bz * cy) / 6, (bz * cx - bx * cz) / 6, (bx * cy - by * cx) / 6
-        vol += ax * gx + ay * gy + az * gz
-        grad[i, 0] += gx
-        grad[i, 1] += gy
-        grad[i, 2] += gz
-        grad[j, 0] += (cy * az - cz * ay) / 6
-        grad[j, 1] += (cz * ax - cx * az) / 6
-        grad[j, 2] += (cx * ay - cy * ax) / 6
-        grad[k, 0] += (ay * bz - az * by) / 6
-        grad[k, 1] += (az * bx - ax * bz) / 6
-        grad[k, 2] += (ax * by - ay * bx) / 6
+        vol += (
+            x[i, 0] * (x[j, 1] * x[k, 2] - x[j, 2] * x[k, 1])
+            + x[i, 1] * (x[j, 2] * x[k, 0] - x[j, 0] * x[k, 2])
+            + x[i, 2] * (x[j, 0] * x[k, 1] - x[j, 1] * x[k, 0])
+        ) / 6
+    for v in prange(x.shape[0]):
+        gx = gy = gz = 0.0
+        for m in range(corner_ptr[v], corner_ptr[v + 1]):
+            j, k = corner_next[m, 0], corner_next[m, 1]  # the corner's gradient is (x_j x x_k) / 6
+            gx += (x[j, 1] * x[k, 2] - x[j, 2] * x[k, 1]) / 6
+            gy += (x[j, 2] * x[k, 0] - x[j, 0] * x[k, 2]) / 6
+            gz += (x[j, 0] * x[k, 1] - x[j, 1] * x[k, 0]) / 6
+        grad[v, 0], grad[v, 1], grad[v, 2] = gx, gy, gz
     return vol
 
 
@@ -135,28 +143,29 @@ def _row_product(ptr, idx, val, y, i):
     return ax, ay, az
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _add_smoothness_gradient(l_ptr, l_idx, l_val, t_ptr, t_idx, t_val, x, w, coef, g, lap, weighted):
     """lap = L x, weighted = W lap and g += coef * L^T weighted, the Laplacian energy's gradient, in one pass per
     product (L^T as its own CSR, summed in scipy's order, so the result is scipy's to the bit; two scipy
-    products and the temporaries took 5 s of the teacup's 3,000 iterations)."""
-    for i in range(x.shape[0]):
+    products and the temporaries took 5 s of the teacup's 3,000 iterations). Rows run in parallel: each row's
+    sum keeps its order."""
+    for i in prange(x.shape[0]):
         ax, ay, az = _row_product(l_ptr, l_idx, l_val, x, i)
         lap[i, 0], lap[i, 1], lap[i, 2] = ax, ay, az
         weighted[i, 0], weighted[i, 1], weighted[i, 2] = w[i] * ax, w[i] * ay, w[i] * az
-    for i in range(x.shape[0]):
+    for i in prange(x.shape[0]):
         ax, ay, az = _row_product(t_ptr, t_idx, t_val, weighted, i)
         g[i, 0] += coef * ax
         g[i, 1] += coef * ay
         g[i, 2] += coef * az
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _vector_adam(x, g, m, s, lr, t, b1, b2):
     """Adam with one second moment per vertex (isotropic steps, as DCUDF), in place. (No default arguments: a
     call that omits one takes numba's slow dispatch, 110 us against 3.)"""
     c1, c2 = 1 - b1**t, 1 - b2**t
-    for n in range(x.shape[0]):
+    for n in prange(x.shape[0]):
         sq = 0.0
         for k in range(3):
             m[n, k] = b1 * m[n, k] + (1 - b1) * g[n, k]
@@ -296,6 +305,7 @@ def contract(
     if outside_weight > 0:
         field = InsideQ(field, outside_weight)
     surf = np.unique(faces)
+    all_surface = len(surf) == len(x)  # a surface covering: no inner (tet) vertices to leave out of q
     if tets is not None and signed_volumes(vertices, tets).sum() < 0:
         tets = tets[:, [0, 2, 1, 3]]
     L = umbrella(len(x), faces)
@@ -317,14 +327,18 @@ def contract(
     zipper = LayerZip(faces, surf, features, zip_near, zip_reach) if has_features and zip_weight > 0 else None
     vol0 = enclosed(x)[0]
     for it in range(iterations):
+        at = x if all_surface else x[surf]
         if q_lattice is not None:
-            q, qg = q_lattice(x[surf])
+            q, qg = q_lattice(at)
         else:
-            out = field.evaluate(x[surf], grad=True)
+            out = field.evaluate(at, grad=True)
             q, qg = out["q"], out["q_grad"]
             exact_evaluations += len(surf)
-        g = np.zeros_like(x)
-        g[surf] = qg / len(surf)
+        if all_surface:
+            g = np.asarray(qg, np.float64) / len(surf)
+        else:
+            g = np.zeros_like(x)
+            g[surf] = qg / len(surf)
         vol, vol_grad = enclosed(x)
         # max(Vol, 0): the signed volume has no minimum at zero; once the layers meet it would keep pushing
         # them through each other (measured: the box's covering diverged to -2e3 without the clamp)

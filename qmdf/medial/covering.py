@@ -36,18 +36,15 @@ def mesh_stats(mesh) -> dict:
     }
 
 
-def decimate(mesh, target_faces: int):
-    """Quadric edge collapse (MeshLab) that keeps the topology, so the covering stays closed with its genus."""
-    import pymeshlab
+def decimate(mesh, target_faces: int, workers: int = 1):
+    """Quadric edge collapse that keeps the topology (``qmdf.geometry.decimation``), so the covering stays closed
+    with its genus."""
     import trimesh
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(mesh.vertices), face_matrix=np.asarray(mesh.faces)))
-    ms.meshing_decimation_quadric_edge_collapse(
-        targetfacenum=int(target_faces), preservetopology=True, preservenormal=True, planarquadric=True, qualitythr=0.3
-    )
-    m = ms.current_mesh()
-    out = trimesh.Trimesh(m.vertex_matrix(), m.face_matrix(), process=True)
+    from qmdf.geometry.decimation import decimate as collapse
+
+    v, f = collapse(mesh.vertices, mesh.faces, target_faces, workers=workers)
+    out = trimesh.Trimesh(v, f, process=True)
     if out.is_watertight and out.volume < 0:
         out.invert()
     return out
@@ -79,6 +76,7 @@ def build_covering(
     extent: float = 0.55,
     speck_fraction: float = 0.01,
     max_faces: int = 30000,
+    decimation_workers: int = 1,
     log=None,
 ):
     """The covering mesh (specks dropped, decimated), its statistics and the grid nodes inside it (the
@@ -112,7 +110,7 @@ def build_covering(
     mesh = trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
     faces_before = len(mesh.faces)
     if max_faces and len(mesh.faces) > max_faces:
-        mesh = decimate(mesh, max_faces)
+        mesh = decimate(mesh, max_faces, decimation_workers)
     stats = mesh_stats(mesh)
     stats["faces_before_decimation"] = faces_before
     stats.update(

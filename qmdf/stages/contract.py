@@ -83,6 +83,7 @@ class Contract(Stage):
     optional_inputs = {"covering_tets": TETS, "feature_points": POINTS}
     outputs = {"membrane": MESH, "contraction": JSON}
     optional_outputs = {"contracted_tets": TETS}
+    version = "2"  # 2: the volume's gradient summed per vertex, in parallel (its last bits differ)
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.tets import boundary_faces

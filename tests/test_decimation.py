@@ -1,0 +1,70 @@
+"""The covering's decimation: one MeshLab pass, or two halves in two processes welded along their cut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from skimage.measure import marching_cubes
+
+from qmdf.geometry.decimation import decimate
+
+
+def _genus_two_surface(n: int = 64) -> trimesh.Trimesh:
+    """Marching cubes of two tori fused side by side (genus 2, chi -2): a closed surface like a covering."""
+    t = np.linspace(-1.2, 1.2, n)
+    x, y, z = np.meshgrid(t, t, t, indexing="ij")
+
+    def torus(cx):
+        return np.sqrt((np.sqrt((x - cx) ** 2 + y**2) - 0.45) ** 2 + z**2) - 0.18
+
+    v, f, _, _ = marching_cubes(np.minimum(torus(-0.5), torus(0.5)), 0.0, spacing=(t[1] - t[0],) * 3)
+    return trimesh.Trimesh(v + t[0], f, process=True)
+
+
+@pytest.fixture(scope="module")
+def surface():
+    mesh = _genus_two_surface()
+    assert mesh.is_watertight and mesh.euler_number == -2
+    return mesh
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_decimation_keeps_the_topology_and_the_shape(surface, workers):
+    target = 2000
+    v, f = decimate(surface.vertices, surface.faces, target, workers=workers)
+    out = trimesh.Trimesh(v, f, process=True)
+    assert len(surface.faces) > 4 * target
+    assert target - 10 <= len(out.faces) <= target
+    assert out.is_watertight and out.euler_number == -2 and len(out.split(only_watertight=False)) == 1
+    assert abs(abs(out.volume) - surface.volume) < 0.01 * surface.volume
+    _, dist, _ = trimesh.proximity.closest_point(surface, out.vertices)
+    assert dist.max() < 0.02  # the grid step is 0.038
+
+
+def test_two_halves_weld_without_a_seam(surface):
+    """No vertex is left twice on the cut: a duplicate would open the surface (boundary edges) or leave two
+    vertices at one place."""
+    v, f = decimate(surface.vertices, surface.faces, 2000, workers=2)
+    used = np.unique(f)
+    assert len(used) == len(v)
+    assert len(np.unique(np.round(v, 12), axis=0)) == len(v)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, count = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(count == 2)
+
+
+def test_small_meshes_take_one_pass(surface):
+    one = decimate(surface.vertices, surface.faces, len(surface.faces) // 2, workers=1)
+    two = decimate(surface.vertices, surface.faces, len(surface.faces) // 2, workers=2)  # under 4x the target
+    assert np.array_equal(one[1], two[1]) and np.array_equal(one[0], two[0])
+
+
+def test_a_failed_second_process_falls_back_to_one_pass(surface, monkeypatch, caplog):
+    import sys
+
+    monkeypatch.setattr(sys, "executable", "/bin/false")
+    v, f = decimate(surface.vertices, surface.faces, 2000, workers=2)
+    assert "decimating in one pass" in caplog.text
+    one = decimate(surface.vertices, surface.faces, 2000, workers=1)
+    assert np.array_equal(f, one[1])
