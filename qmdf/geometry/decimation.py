@@ -13,7 +13,6 @@ boundary, so the welded mesh has the topology of the input.
 from __future__ import annotations
 
 import logging
-import os
 import subprocess
 import sys
 import tempfile
@@ -21,8 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-#: below this many faces one pass is quicker than the second process's start
-PARALLEL_MIN_FACES = 100_000
 #: the halves stop at this share over their part of the target; the last pass takes the rest from the cut's strip
 _HALF_SLACK = 1.1
 
@@ -54,21 +51,10 @@ def _half(vertices: np.ndarray, faces: np.ndarray, target_faces: int):
     return v, f, np.rint(ids).astype(np.int64)
 
 
-def available_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
-def decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int, workers: int | None = None):
-    """(vertices, faces) with at most about ``target_faces`` faces, the topology kept. ``workers``: 2 splits the
-    work over two processes (default: when two CPUs are available and the mesh has at least
-    ``PARALLEL_MIN_FACES`` faces; a mesh under 4x the target always takes one pass), 1 is MeshLab's single
-    pass."""
+def decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int, workers: int = 1):
+    """(vertices, faces) with at most about ``target_faces`` faces, the topology kept. ``workers``: 1 is MeshLab's
+    single pass, 2 splits the work over two processes (a mesh under 4x the target still takes one pass)."""
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    if workers is None:
-        workers = 2 if available_cpus() >= 2 and len(faces) >= PARALLEL_MIN_FACES else 1
     if workers < 2 or len(faces) < 4 * target_faces:
         return _collapse(vertices, faces, target_faces)[:2]
     centroids = vertices[faces].mean(1)
