@@ -19,9 +19,11 @@ def inward_medial_radii(
     r_max: float = 1.0,
     tol: float | np.ndarray = 1e-4,
     iterations: int = 20,
+    start: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The medial radius behind each point (bisection to r_max / 2**iterations)."""
-    lo = np.zeros(len(points))
+    """The medial radius behind each point (bisection of [start, r_max] to its width / 2**iterations); ``start``
+    (default 0) is a depth known to pass the test, such as a point's own distance to the surface."""
+    lo = np.zeros(len(points)) if start is None else np.array(start, np.float64)
     hi = np.full(len(points), float(r_max))
     tol = np.broadcast_to(np.asarray(tol, float), lo.shape)
     for _ in range(iterations):

@@ -108,8 +108,12 @@ def centre_on_data(
     move = np.flatnonzero(inside & (d > 0))
     if len(move):
         u = (x[move] - foot[move]) / d[move, None]
-        r = inward_medial_radii(foot[move], -u, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=20)
-        r = np.maximum(r, d[move])  # the vertex's own ball fits: the centre never moves back toward p
+        # The vertex's own ball fits, so the bisection starts there (the centre never moves back toward p), and
+        # stops at a width of tol / 8: the step below lands on the axis from anywhere within 4 tol of it.
+        iterations = int(np.clip(np.ceil(np.log2(8.0 / tol)), 1, 20))
+        r = inward_medial_radii(
+            foot[move], -u, lambda q: distance(q)[0], r_max=1.0, tol=tol, iterations=iterations, start=d[move]
+        )
         # The bisection stops past the axis by up to about tol. One shrinking-ball step back: the point of the
         # ray equidistant from p and from the nearest data point p2 beyond it, t = |p2 - p|^2 / (2 u.(p2 - p)),
         # taken when it lies within a few tol behind (not where p2 is p's own neighbour: a tip, a facet).

@@ -156,8 +156,8 @@ class Sheet(Stage):
     # 5: coverage kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
     # 7: a vertex outside goes to the surface with radius 0; 8: squares and edges off q's valley released;
     # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology;
-    # 11: rims carried out to the axis's end
-    version = "11"
+    # 11: rims carried out to the axis's end; 12: the centring's bisection starts at the vertex's own depth
+    version = "12"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
