@@ -77,8 +77,8 @@ class Export(Stage):
     }
     # 2: the single sheet when present; the membrane as membrane.ma; 3: centre_on_data; 4: coverage; 5: coverage
     # kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
-    # 7: a vertex outside goes to the surface with radius 0; 8: a sheet that fits worse than the membrane is not the MAT;
-    # 9: the centring's bisection starts at the vertex's own depth and stops at tol / 8
+    # 7: a vertex outside goes to the surface with radius 0; 8: a sheet that fits worse than the membrane is not
+    # the MAT; 9: the centring's bisection starts at the vertex's own depth and stops at tol / 8
     version = "9"
 
     def run(self, ctx: StageContext) -> None:
