@@ -390,3 +390,28 @@ def test_the_solid_euler_characteristic_of_a_closed_mesh_and_none_of_an_open_one
     assert solid_euler(two.faces) == 1  # a ball and a solid torus
     cut = trimesh.creation.icosphere(2)
     assert solid_euler(cut.faces[4:]) is None
+
+
+def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
+    from qmdf.medial.sheet import simplified_sheet
+
+    q = _ring_with_bar()  # every level from 0.07 down to 0.021 has chi -1 or 0, none the ball's 1
+    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
+    grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
+
+    def evaluate(p):
+        x, y, z = p.T
+        ring = np.hypot(np.hypot(x, y) - 0.3, z)
+        bar = np.hypot(y, z) + np.maximum(np.abs(x) - 0.3, 0) + 0.04
+        return {"q": np.minimum(ring, bar), "sdf": np.full(len(p), -0.1)}
+
+    args = (grid, evaluate, np.asarray(tube.vertices), np.asarray(tube.faces), lambda x: np.full(len(x), 0.05))
+    _, kept = simplified_sheet(*args, target_vertices=0, target_chi=1, grow_topology=False)
+    assert kept["level"]["eps"] is None and kept["after"]["chi"] == -1  # the covering's nodes as they are
+    mat, grown = simplified_sheet(*args, target_vertices=0, target_chi=1)
+    assert grown["after"]["chi"] == 1 and grown["level"]["grown"]["chi"] == 1
+    assert grown["level"]["grown"]["refused"] > 0
+    assert grown["after"]["faces"] == 0  # a tree of polylines: both loops cut
+    # the tree still follows the ring: most of the circle's length is kept
+    on_ring = np.abs(np.hypot(mat.vertices[:, 0], mat.vertices[:, 1]) - 0.3) < 2 * H
+    assert on_ring.sum() > 0.8 * (2 * np.pi * 0.3 / H)

@@ -350,6 +350,7 @@ def simplified_sheet(
     valley_only: bool = True,
     fill_pockets: bool = True,
     target_chi: int | None = None,
+    grow_topology: bool = True,
     target_vertices: int = 3000,
     compact_slack: float = 1.5,
     boundary_weight: float = 1.0,
@@ -366,10 +367,12 @@ def simplified_sheet(
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
     ``speck_fraction`` of the largest dropped, with ``fill_pockets`` its voids inside the shape filled
     (``fill_voids``), q and sdf from ``evaluate(points)``, with ``target_chi`` the nodes below the highest level
-    whose solid has that Euler characteristic (``level_with_topology``; none: the covering's nodes), collapsed onto
-    the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to ``target_vertices``
-    (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical quadric error, and last,
-    with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis; vertices within
+    whose solid has that Euler characteristic (``level_with_topology``; none: with ``grow_topology`` and
+    ``target_chi`` <= 1 a solid grown in the covering with it, ``topology_growth``, else the covering's nodes),
+    collapsed onto the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to
+    ``target_vertices`` (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical
+    quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis;
+    vertices within
     ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last, ``refine_of(vertices, radii,
     lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope falls
     short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
@@ -422,7 +425,13 @@ def simplified_sheet(
         level = {"target_chi": int(target_chi), "eps": found, "scan": scan}
         if found is not None:
             inside, eps = mask, found
-    if level is None or level["eps"] is None:
+        elif grow_topology and target_chi <= 1:
+            from qmdf.medial.topology_growth import grow_with_topology
+
+            allowed = prepare(inside)
+            field_at(np.argwhere(allowed))
+            inside, level["grown"] = grow_with_topology(allowed, np.where(allowed, q, np.inf), target_chi)
+    if level is None or (level["eps"] is None and "grown" not in level):
         inside = prepare(inside)
     field_at(np.argwhere(inside))  # the filled voids' nodes too
     q = np.where(inside, q, np.inf)
