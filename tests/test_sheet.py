@@ -348,6 +348,21 @@ def _ring_with_bar():
     return np.minimum(ring, bar)
 
 
+def _ring_with_bar_sheet_args(q):
+    """``simplified_sheet``'s first five arguments for ``_ring_with_bar``'s covering at 0.07, placed on a thin
+    ring's surface."""
+    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
+    grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
+
+    def evaluate(p):
+        x, y, z = p.T
+        ring = np.hypot(np.hypot(x, y) - 0.3, z)
+        bar = np.hypot(y, z) + np.maximum(np.abs(x) - 0.3, 0) + 0.04
+        return {"q": np.minimum(ring, bar), "sdf": np.full(len(p), -0.1)}
+
+    return grid, evaluate, np.asarray(tube.vertices), np.asarray(tube.faces), lambda x: np.full(len(x), 0.05)
+
+
 def test_the_level_with_the_shapes_topology_is_the_highest_one_below_a_bridge():
     from qmdf.medial.sheet import level_with_topology
 
@@ -364,16 +379,7 @@ def test_the_sheet_takes_the_level_of_the_shapes_topology():
     from qmdf.medial.sheet import simplified_sheet
 
     q = _ring_with_bar()
-    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
-    grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
-
-    def evaluate(p):
-        x, y, z = p.T
-        ring = np.hypot(np.hypot(x, y) - 0.3, z)
-        bar = np.hypot(y, z) + np.maximum(np.abs(x) - 0.3, 0) + 0.04
-        return {"q": np.minimum(ring, bar), "sdf": np.full(len(p), -0.1)}
-
-    args = (grid, evaluate, np.asarray(tube.vertices), np.asarray(tube.faces), lambda x: np.full(len(x), 0.05))
+    args = _ring_with_bar_sheet_args(q)
     _, plain = simplified_sheet(*args, target_vertices=0)
     assert plain["after"]["chi"] == -1 and plain["level"] is None
     _, matched = simplified_sheet(*args, target_vertices=0, target_chi=0)
@@ -396,16 +402,7 @@ def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
     from qmdf.medial.sheet import simplified_sheet
 
     q = _ring_with_bar()  # every level from 0.07 down to 0.021 has chi -1 or 0, none the ball's 1
-    tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
-    grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
-
-    def evaluate(p):
-        x, y, z = p.T
-        ring = np.hypot(np.hypot(x, y) - 0.3, z)
-        bar = np.hypot(y, z) + np.maximum(np.abs(x) - 0.3, 0) + 0.04
-        return {"q": np.minimum(ring, bar), "sdf": np.full(len(p), -0.1)}
-
-    args = (grid, evaluate, np.asarray(tube.vertices), np.asarray(tube.faces), lambda x: np.full(len(x), 0.05))
+    args = _ring_with_bar_sheet_args(q)
     _, kept = simplified_sheet(*args, target_vertices=0, target_chi=1, grow_topology=False)
     assert kept["level"]["eps"] is None and kept["after"]["chi"] == -1  # the covering's nodes as they are
     mat, grown = simplified_sheet(*args, target_vertices=0, target_chi=1)
