@@ -373,8 +373,8 @@ def simplified_sheet(
     ``target_vertices`` (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical
     quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis;
     vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last,
-    ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope falls
-    short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
+    ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to
+    ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
     MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
     1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
     MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
