@@ -370,18 +370,18 @@ def simplified_sheet(
     whose solid has that Euler characteristic (``level_with_topology``; none: with ``grow_topology`` and
     ``target_chi`` <= 1 a solid grown in the covering with it, ``topology_growth``, else the covering's nodes),
     collapsed onto the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to
-    ``target_vertices`` (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical
-    quadric error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis;
-    vertices within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last,
-    ``refine_of(vertices, radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to
-    ``refine_vertices`` where the envelope falls short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings the
-    MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
+    ``target_vertices`` (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical quadric
+    error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis; vertices
+    within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last, ``refine_of(vertices,
+    radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope
+    falls short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings
+    the MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
     1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
     MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
     sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Last, with
     ``extend_of(vertices, radii, lone edges, faces, fixed) -> (vertices, radii, stats)``, the rims are carried out
-    to the axis's end (``medial.rims``), the tips fixed. Returns the
-    ``MedialMesh`` and its stats (before and after simplification)."""
+    to the axis's end (``medial.rims``), the tips fixed. Returns the ``MedialMesh`` and its stats (before and after
+    simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
