@@ -291,3 +291,30 @@ def mesh_distance_face(mesh, points):
     from qmdf.geometry.inside import mesh_closest
 
     return mesh_closest(np.asarray(mesh.vertices), np.asarray(mesh.faces), points)[1]
+
+
+def test_the_poisson_surface_follows_a_sparse_clean_cloud_between_its_points_but_not_a_noisy_clouds_noise():
+    """600 points of a box: the fine octree's surface (the default) agrees with the box's inside on more of the
+    volume than the solver's own default octree (measured 99.57% against 99.43%: its edges less rounded). With
+    noise of 0.01 the fine surface falls into pieces (3 against 1), so the coarse one is taken, saying why."""
+    from qmdf.geometry.proxy_surface import poisson_surface
+
+    box = trimesh.creation.box(extents=(0.8, 0.5, 0.3))
+    pts, nrm = _samples(box, 600)
+    q = np.random.default_rng(0).uniform(-0.5, 0.5, (50000, 3))
+    inside = mesh_winding_number(box.vertices, box.faces, q) > 0.5
+
+    def agreement(mesh):
+        return np.mean((mesh_winding_number(*mesh, q) > 0.5) == inside)
+
+    fine_info, coarse_info = {}, {}
+    fine = poisson_surface(pts, nrm, info=fine_info)
+    coarse = poisson_surface(pts, nrm, samples_per_node=1.5, info=coarse_info)
+    assert fine_info == {"samples_per_node": 0.25} and coarse_info == {"samples_per_node": 1.5}
+    assert agreement(fine) > 0.995 and agreement(fine) > agreement(coarse) + 7e-4
+
+    noisy = pts + np.random.default_rng(1).normal(scale=0.01, size=pts.shape)
+    info = {}
+    v, f = poisson_surface(noisy, nrm, info=info)
+    assert info["samples_per_node"] == 1.5 and "fits noise" in info["why"]
+    assert trimesh.Trimesh(v, f, process=False).is_watertight

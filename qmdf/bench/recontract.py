@@ -26,11 +26,12 @@ def _input_data(run_dir: Path, stages: list[dict], index: int):
     """(mesh, points) as export's ``input_data`` gives them, from the run's artifacts."""
     from qmdf.stages.inputs import radius_data
 
-    path = {k: _latest_before(stages, k, index) for k in ("input_info", "surface", "points")}
+    path = {k: _latest_before(stages, k, index) for k in ("input_info", "surface", "points", "point_surface")}
     return radius_data(
         JSON.load(run_dir / path["input_info"]) if path["input_info"] else {},
         (lambda: MESH.load(run_dir / path["surface"])) if path["surface"] else None,
         (lambda: POINTS.load(run_dir / path["points"])) if path["points"] else None,
+        (lambda: MESH.load(run_dir / path["point_surface"])) if path["point_surface"] else None,
     )
 
 
@@ -89,7 +90,9 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
         from qmdf.stages.inputs import surface_balls_of
 
         sampled = _latest_before(stages, "points", last["index"])
-        load = (lambda: POINTS.load(run_dir / sampled)) if sampled else None
+        # the run's points sample an input mesh, not a cloud's Poisson surface (sampled afresh then)
+        own = _latest_before(stages, "point_surface", last["index"]) is None
+        load = (lambda: POINTS.load(run_dir / sampled)) if sampled and own else None
         mat, _ = cover_mat(mat, surface_balls_of(field, mesh, points, load), budget, int(config.get("seed", 0)))
     out_dir.mkdir(parents=True, exist_ok=True)
     write_ma(out_dir / "mat.ma", mat)

@@ -60,6 +60,7 @@ class Supervision:
     stats: dict = field(default_factory=dict)
     ray_origins: np.ndarray | None = None  # (R, 3) where the medial rays start; None: at the surface points
     ray_normals: np.ndarray | None = None  # (R, 3) the rays' outward directions; None: the points' normals
+    proxy_mesh: tuple[np.ndarray, np.ndarray] | None = None  # a cloud's closed Poisson surface, when it had one
 
 
 def choose_route(requested: str, mesh_available: bool, has_normals: bool) -> tuple[str, str]:
@@ -94,6 +95,7 @@ def build_supervision(
     proxy: str = "poisson",
     poisson_depth: int = 8,
     poisson_point_weight: float = 4.0,
+    poisson_samples_per_node: tuple[float, float] = (0.25, 1.5),
     proxy_rays: int = 50_000,
     zero_level: str = "input",
     mesh_rays: str = "smooth",
@@ -121,7 +123,11 @@ def build_supervision(
         noise = float(np.median(residual))
         stats["noise_level"] = noise
         if proxy == "poisson":
-            proxy_mesh = poisson_surface(points, normals, poisson_depth, poisson_point_weight)
+            octree: dict = {}
+            fine, coarse = poisson_samples_per_node
+            proxy_mesh = poisson_surface(
+                points, normals, poisson_depth, poisson_point_weight, fine, coarse, info=octree
+            )
             stats["proxy"] = (
                 "poisson"
                 if proxy_mesh is not None
@@ -131,7 +137,12 @@ def build_supervision(
             stats["proxy"] = "points"
         if proxy_mesh is not None:
             pv, pf = proxy_mesh
-            stats["proxy_surface"] = {"vertices": int(len(pv)), "faces": int(len(pf)), "solid_euler": solid_euler(pf)}
+            stats["proxy_surface"] = {
+                "vertices": int(len(pv)),
+                "faces": int(len(pf)),
+                "solid_euler": solid_euler(pf),
+                **octree,
+            }
             # the rays start on the proxy, from many more points than a sparse cloud has: an inside sample's mf is the
             # radius behind its closest surface point, and 2,000 rays on the bunny left it noisy (eps raised to 0.068)
             count = max(len(points), min(proxy_rays, int(volume_samples * ray_fraction)))
@@ -208,7 +219,9 @@ def build_supervision(
         # into the noise (the noisy torus: a rough zero set with islands), the proxy has smoothed it
         surface, surface_normals = origins, ray_normals
         stats["zero_level"] = "proxy"
-    return Supervision(route, surface, surface_normals, volume, sdf, mf, radii, ray, stats, origins, ray_normals)
+    return Supervision(
+        route, surface, surface_normals, volume, sdf, mf, radii, ray, stats, origins, ray_normals, proxy_mesh
+    )
 
 
 def _unit(n: np.ndarray) -> np.ndarray:

@@ -12,13 +12,52 @@ from __future__ import annotations
 
 import numpy as np
 
+from qmdf.geometry.metrics import solid_euler
+
 
 def poisson_surface(
-    points: np.ndarray, normals: np.ndarray, depth: int = 8, point_weight: float = 4.0, min_area_share: float = 0.02
+    points: np.ndarray,
+    normals: np.ndarray,
+    depth: int = 8,
+    point_weight: float = 4.0,
+    samples_per_node: float = 0.25,
+    coarse_samples_per_node: float = 1.5,
+    min_area_share: float = 0.02,
+    info: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Screened Poisson surface of the points with their outward normals, as (vertices, faces), its components
     with less than ``min_area_share`` of the total area dropped (islands the solver makes of noise); None when
-    the reconstruction fails, leaves nothing, or is not closed."""
+    the reconstruction fails, leaves nothing, or is not closed.
+
+    Two octrees: the solver refines a node while it holds ``samples_per_node`` points. The fine one (0.25) lets a
+    sparse clean cloud's surface follow its points between them: the 1,000-point block's sign against block.obj
+    99.16% -> 99.59%, the 2,000-point bunny's against the aligned bunny.off 99.26% -> 99.57% (the solver's own
+    default, 1.5, leaves cells wider than the sampling gap there). On a noisy cloud the fine octree fits the noise:
+    the double torus at sigma 0.01 comes out in 3 pieces against 1, at 0.03 in 105 against 9. So the fine surface
+    is kept only where it has the coarse one's pieces and solid Euler characteristic; else the coarse one (the
+    solver's documented use of the parameter: small for noise-free samples, larger for noisy ones). ``info``, when
+    given, gets which one was taken and why."""
+    info = {} if info is None else info
+    fine = _screened_poisson(points, normals, depth, point_weight, samples_per_node)
+    info["samples_per_node"] = samples_per_node
+    if coarse_samples_per_node != samples_per_node:
+        coarse = _screened_poisson(points, normals, depth, point_weight, coarse_samples_per_node)
+        if coarse is not None and (
+            fine is None or fine[1] != coarse[1] or solid_euler(fine[0].faces) != solid_euler(coarse[0].faces)
+        ):
+            info["samples_per_node"] = coarse_samples_per_node
+            info["why"] = (
+                "the fine octree's surface failed"
+                if fine is None
+                else f"the fine octree's surface has {fine[1]} pieces, solid chi {solid_euler(fine[0].faces)}, "
+                f"the coarse one's {coarse[1]}, {solid_euler(coarse[0].faces)}: it fits noise"
+            )
+            fine = coarse
+    return None if fine is None else _closed_main_parts(fine[0], min_area_share)
+
+
+def _screened_poisson(points, normals, depth, point_weight, samples_per_node):
+    """The solver's surface as a trimesh and its number of pieces; None when it fails or leaves nothing."""
     import pymeshlab
     import trimesh
 
@@ -31,7 +70,7 @@ def poisson_surface(
     )
     try:
         ms.generate_surface_reconstruction_screened_poisson(
-            depth=int(depth), pointweight=float(point_weight), preclean=True
+            depth=int(depth), pointweight=float(point_weight), samplespernode=float(samples_per_node), preclean=True
         )
     except pymeshlab.PyMeshLabException:
         return None
@@ -40,6 +79,12 @@ def poisson_surface(
     if len(f) == 0:
         return None
     mesh = trimesh.Trimesh(v, f, process=False)
+    return mesh, int(mesh.body_count)
+
+
+def _closed_main_parts(mesh, min_area_share: float) -> tuple[np.ndarray, np.ndarray] | None:
+    import trimesh
+
     parts = mesh.split(only_watertight=False)
     total = sum(p.area for p in parts)
     kept = [p for p in parts if p.area >= min_area_share * total]

@@ -1,8 +1,9 @@
 """The radius of each MAT vertex. A vertex near the axis is the centre of the largest ball inside the shape there,
 whose radius is the distance from the vertex to the surface, so the most direct source is the input itself:
 
-- ``data``: the distance to the input mesh (an undegraded mesh input) or to the input points (a cloud: it
-  over-estimates by about gap^2 / (8 r) between samples);
+- ``data``: the distance to the input mesh (an undegraded mesh input), to a cloud's closed Poisson surface (the
+  stages' ``input_data``), or to the input points (it over-estimates by about gap^2 / (8 r) between samples:
+  the 1,000-point block's MAT radii 5.6e-3 too large on average, to its Poisson surface 1.3e-3);
 - ``sdf``: the learned |sdf| (short of the depth wherever |grad sdf| < 1 inside);
 - ``mf``: the learned medial field (the radius of the medial ball of the ray through the vertex: right on the
   axis, too large off it).

@@ -64,6 +64,7 @@ class Export(Stage):
         "sheet": MAT,
         "sheet_stats": JSON,
         "medial_rays": RAYS,
+        "point_surface": MESH,
     }
     outputs = {
         "mat": MAT,
@@ -79,7 +80,8 @@ class Export(Stage):
     # kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
     # 7: a vertex outside goes to the surface with radius 0; 8: a sheet that fits worse than the membrane is not
     # the MAT; 9: the centring's bisection starts at the vertex's own depth and stops at tol / 8
-    version = "9"
+    # 10: a cloud measured against its Poisson surface (train.point_surface_as_data)
+    version = "10"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh

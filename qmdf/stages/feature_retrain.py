@@ -46,7 +46,8 @@ class FeatureRetrain(Stage):
 
     Config = FeatureRetrainConfig
     inputs = {"field": FIELD, "points": POINTS, "normalization": NORMALIZATION, "feature_points": POINTS}
-    optional_inputs = {"surface": MESH, "input_info": JSON}  # the supervision route, as train's
+    # the supervision route, as train's; the data the bisector walks are checked against
+    optional_inputs = {"surface": MESH, "input_info": JSON, "point_surface": MESH}
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
     version = "3"  # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept

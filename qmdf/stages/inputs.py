@@ -8,21 +8,32 @@ from qmdf.stage import StageContext
 
 
 def input_data(ctx: StageContext):
-    """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else the input points
-    (what the method saw, never the clean reference of a simulated scan)."""
+    """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else a cloud's closed
+    Poisson surface that train handed on (``train.point_surface_as_data``), else the input points (what the
+    method saw, never the clean reference of a simulated scan)."""
     return radius_data(
         ctx.load("input_info") if ctx.has("input_info") else {},
         (lambda: ctx.load("surface")) if ctx.has("surface") else None,
         (lambda: ctx.load("points")) if ctx.has("points") else None,
+        (lambda: ctx.load("point_surface")) if ctx.has("point_surface") else None,
     )
 
 
-def radius_data(info: dict, load_surface, load_points):
-    """``input_data``'s rule on a run's artifacts: ``load_surface`` / ``load_points`` load them (None: absent)."""
-    if load_surface is not None and info.get("kind") == "mesh" and not info.get("degradations"):
+def radius_data(info: dict, load_surface, load_points, load_point_surface=None):
+    """``input_data``'s rule on a run's artifacts: ``load_surface`` / ``load_points`` / ``load_point_surface``
+    load them (None: absent)."""
+    if is_input_mesh(info, load_surface is not None):
         surface = load_surface()
-        return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
-    return None, load_points().points if load_points is not None else None
+    elif load_point_surface is not None:
+        surface = load_point_surface()
+    else:
+        return None, load_points().points if load_points is not None else None
+    return (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64)), None
+
+
+def is_input_mesh(info: dict, has_surface: bool) -> bool:
+    """Whether the run's data is its input mesh, undegraded (a degraded mesh stands for a scan: its points)."""
+    return has_surface and info.get("kind") == "mesh" and not info.get("degradations")
 
 
 def known_solid_euler(ctx: StageContext, mesh: tuple[np.ndarray, np.ndarray] | None) -> int | None:
@@ -39,12 +50,15 @@ def known_solid_euler(ctx: StageContext, mesh: tuple[np.ndarray, np.ndarray] | N
 
 
 def input_surface_balls(ctx: StageContext, field, mesh, points):
-    """``surface_balls_of`` on a stage's inputs, train's ``medial_rays`` reused where the run has them."""
+    """``surface_balls_of`` on a stage's inputs, train's ``medial_rays`` reused where the run has them. The run's
+    points are the samples of an input mesh only: on a cloud's Poisson surface they are samples of another
+    surface (and may have no normals), so it is sampled afresh."""
+    own = is_input_mesh(ctx.load("input_info") if ctx.has("input_info") else {}, ctx.has("surface"))
     return surface_balls_of(
         field,
         mesh,
         points,
-        (lambda: ctx.load("points")) if ctx.has("points") else None,
+        (lambda: ctx.load("points")) if own and ctx.has("points") else None,
         ctx.load("medial_rays") if ctx.has("medial_rays") else None,
     )
 

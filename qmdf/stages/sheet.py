@@ -163,6 +163,7 @@ class Sheet(Stage):
         "feature_points": POINTS,
         "medial_rays": RAYS,
         "training": JSON,
+        "point_surface": MESH,
     }
     outputs = {"sheet": MAT, "sheet_stats": JSON}
     # 2: centre_on_data's inside test from the mesh's winding number; 3: feature tips not centred; 4: coverage;
@@ -171,7 +172,8 @@ class Sheet(Stage):
     # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology;
     # 11: rims carried out to the axis's end; 12: the centring's bisection starts at the vertex's own depth;
     # 13: the solid grown with the input's topology where no level of q has it; 14: tip_reach 0.003
-    version = "14"
+    # 15: a cloud measured against its Poisson surface (train.point_surface_as_data)
+    version = "15"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
