@@ -35,6 +35,8 @@ def _collapse(vertices, faces, target_faces: int, ids=None, fixed_boundary: bool
         targetfacenum=int(target_faces),
         preservetopology=True,
         preservenormal=True,
+        # without it the teacup's covering decimates 7% faster and fits twice closer, but the exact box's flat
+        # covering gets slivers the contraction folds (its sheet's CD 1.7e-5 -> 1.7e-4, membrane HD 63.5e-3; 2026-12-04)
         planarquadric=True,
         qualitythr=0.3,
         preserveboundary=fixed_boundary,
