@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from qmdf.fields.field import Field
 from qmdf.geometry.shapes import torus_sdf
@@ -329,3 +330,36 @@ def test_compiled_grid_encoding_is_the_torch_encoding(dtype):
     assert compiled.dtype == dtype and compiled.shape == reference.shape
     tol = 1e-12 if dtype == torch.float64 else 1e-5
     assert (compiled - reference).abs().max() < tol * max(1.0, float(reference.abs().max()))
+
+
+def test_a_clouds_poisson_surface_is_handed_on_as_the_data_the_radii_are_measured_to(compose_cfg, tmp_path):
+    from qmdf.geometry.inside import mesh_distance
+    from qmdf.geometry.sampling import sample_surface
+    from qmdf.geometry.shapes import get_shape
+    from qmdf.stages.inputs import radius_data
+
+    torus = get_shape("torus").mesh(96)
+    v, f = np.asarray(torus.vertices), np.asarray(torus.faces)
+    cloud = sample_surface(v, f, 3000, np.random.default_rng(0))
+    np.savetxt(tmp_path / "torus.xyz", np.hstack([cloud.points, cloud.normals]))
+    cloud_run = [o for o in TINY if not o.startswith("input.shape")] + [f"input.path={tmp_path / 'torus.xyz'}"]
+    runs = {
+        flag: Pipeline(
+            compose_cfg(*cloud_run, "train.steps=5", f"train.point_surface_as_data={flag}"), tmp_path / flag, tmp_path
+        ).run()
+        for flag in ("true", "false")
+    }
+    res = runs["true"]
+    mesh, points = radius_data(
+        res.load("input_info"), None, lambda: res.load("points"), lambda: res.load("point_surface")
+    )
+    assert points is None and len(mesh[1]) > 1000
+    # the closed Poisson surface of the cloud, not the points: close to the torus everywhere, between the points too
+    surface = trimesh.Trimesh(*mesh, process=False)
+    assert surface.is_watertight and surface.euler_number == 0
+    between = sample_surface(v, f, 2000, np.random.default_rng(1)).points
+    norm = res.load("normalization")
+    assert np.median(mesh_distance(*mesh, norm.to_unit(between))[0]) < 2e-3
+    assert "point_surface" not in runs["false"].artifacts
+    mesh, points = radius_data(runs["false"].load("input_info"), None, lambda: runs["false"].load("points"))
+    assert mesh is None and len(points) == 3000
