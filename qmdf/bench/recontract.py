@@ -87,11 +87,14 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     budget = int(export.get("coverage_vertices", 1000))
     if radius == "data" and budget:  # export's coverage of a membrane MAT
         from qmdf.medial.coverage import cover_mat
-        from qmdf.stages.inputs import surface_balls_of
+        from qmdf.stages.inputs import is_input_mesh, surface_balls_of
 
         sampled = _latest_before(stages, "points", last["index"])
+        info = _latest_before(stages, "input_info", last["index"])
         # the run's points sample an input mesh, not a cloud's Poisson surface (sampled afresh then)
-        own = _latest_before(stages, "point_surface", last["index"]) is None
+        own = is_input_mesh(
+            JSON.load(run_dir / info) if info else {}, _latest_before(stages, "surface", last["index"]) is not None
+        )
         load = (lambda: POINTS.load(run_dir / sampled)) if sampled and own else None
         mat, _ = cover_mat(mat, surface_balls_of(field, mesh, points, load), budget, int(config.get("seed", 0)))
     out_dir.mkdir(parents=True, exist_ok=True)

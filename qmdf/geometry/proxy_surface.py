@@ -42,17 +42,17 @@ def poisson_surface(
     info["samples_per_node"] = samples_per_node
     if coarse_samples_per_node != samples_per_node:
         coarse = _screened_poisson(points, normals, depth, point_weight, coarse_samples_per_node)
-        if coarse is not None and (
-            fine is None or fine[1] != coarse[1] or solid_euler(fine[0].faces) != solid_euler(coarse[0].faces)
-        ):
-            info["samples_per_node"] = coarse_samples_per_node
-            info["why"] = (
-                "the fine octree's surface failed"
-                if fine is None
-                else f"the fine octree's surface has {fine[1]} pieces, solid chi {solid_euler(fine[0].faces)}, "
-                f"the coarse one's {coarse[1]}, {solid_euler(coarse[0].faces)}: it fits noise"
-            )
-            fine = coarse
+        if coarse is not None:
+            shape = {name: (s[1], solid_euler(s[0].faces)) for name, s in (("fine", fine), ("coarse", coarse)) if s}
+            if shape.get("fine") != shape["coarse"]:
+                info["samples_per_node"] = coarse_samples_per_node
+                info["why"] = (
+                    "the fine octree's surface failed"
+                    if fine is None
+                    else "the fine octree's surface has {} pieces, solid chi {}, the coarse one's {}, {}: it fits "
+                    "noise".format(*shape["fine"], *shape["coarse"])
+                )
+                fine = coarse
     return None if fine is None else _closed_main_parts(fine[0], min_area_share)
 
 
