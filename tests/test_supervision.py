@@ -143,6 +143,30 @@ def test_routes_and_their_targets_on_the_torus():
     assert paper.normals is None and not np.isfinite(paper.sdf).any() and not np.isfinite(paper.mf).any()
 
 
+def test_the_samples_by_the_axis_lie_on_both_sides_of_it_alike():
+    """The torus's outer side has more surface, so more rays: from each ray's side only, the samples by the axis
+    lie 1.75x as often outside the axis circle as inside it, and the fitted |sdf| ridge leans inward; across the
+    axis (the default) both sides are sampled alike, and those past the axis take the distance and the medial
+    radius of their own closest surface point."""
+    torus = get_shape("torus").mesh(128)
+    pts, nrm = _samples(torus, 8000)
+    v, f = np.asarray(torus.vertices), np.asarray(torus.faces)
+    ratio = {}
+    for band in ("across", "inward"):
+        rng = np.random.default_rng(0)
+        sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=10000, axis_band=band)
+        offset = np.hypot(sup.volume[:, 0], sup.volume[:, 1]) - TORUS_R
+        near = np.hypot(offset, sup.volume[:, 2]) < 0.1 * TORUS_r
+        ratio[band] = (near & (offset > 0)).sum() / (near & (offset < 0)).sum()
+        err = np.abs(sup.sdf[near] - torus_sdf(sup.volume[near]))
+        assert np.median(err) < 1e-3, band
+        with_mf = np.isfinite(sup.mf)
+        assert np.array_equal(sup.ray >= 0, with_mf)
+        assert np.all(np.abs(sup.mf[near & with_mf] - TORUS_r) < 3e-3), band
+    assert 0.85 < ratio["across"] < 1.18, ratio
+    assert ratio["inward"] > 1.4, ratio
+
+
 def test_degradations_drop_normals_and_noise_keeps_them_with_their_points():
     from qmdf.geometry.pointset import PointSet
     from qmdf.geometry.degradations import DropNormalsConfig, NoiseConfig, drop_normals, noise

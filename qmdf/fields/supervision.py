@@ -99,6 +99,7 @@ def build_supervision(
     proxy_rays: int = 50_000,
     zero_level: str = "input",
     mesh_rays: str = "smooth",
+    axis_band: str = "across",
 ) -> Supervision:
     """The training targets of ``route`` (see the module doc). Points are in the unit box."""
     stats: dict = {"route": route}
@@ -183,7 +184,13 @@ def build_supervision(
         ray_idx = rng.integers(len(radii), size=n_rays)
         r = radii[ray_idx]
         u = rng.random(n_rays)
-        depth = np.where(np.arange(n_rays) % 2 == 0, u, 1.0 - 0.15 * u) * r  # half along the ray, half by the axis
+        # half along the ray, half by the axis: from the ray's side only (``inward``), or on both sides of it along
+        # the ray's line (``across``, where a surface gives every sample its distance): the side with more surface
+        # sends more rays (the torus's outer side 2.5x its inner's), and a one-sided band let the fit round the
+        # |sdf| ridge toward the sparser side, q's valley 1.1e-3 inward of the torus's axis
+        across = axis_band == "across" and (route == "mesh" or proxy_mesh is not None)
+        by_axis = 1.0 + 0.15 * (2.0 * u - 1.0) if across else 1.0 - 0.15 * u
+        depth = np.where(np.arange(n_rays) % 2 == 0, u, by_axis) * r
         o = points if origins is None else origins
         n = normals if ray_normals is None else ray_normals
         rays = o[ray_idx] - depth[:, None] * n[ray_idx]
@@ -192,7 +199,12 @@ def build_supervision(
         mf = np.concatenate([mf, r])
         ray = np.concatenate([ray, ray_idx])
         stats["medial_radius"] = {"median": float(np.median(radii)), "max": float(radii.max())}
-    free = slice(0, len(volume) - n_rays)  # the samples not on a ray
+    # the samples not on a ray: their targets come from their closest surface point (below), as do those of the
+    # band across the axis that lie past it, on the other side's rays
+    free = np.ones(len(volume), bool)
+    if n_rays:
+        free[len(volume) - n_rays :] = depth > r
+        mf[free], ray[free] = np.nan, -1
     if route == "mesh" or proxy_mesh is not None:
         # every sample from the surface, the rays' depths too (a radius can over-shoot the axis by tol / 2); its
         # foot is the ray origin nearest to its closest surface point
@@ -209,7 +221,8 @@ def build_supervision(
         # arbitrary mf between them, and a covering of genus 1800.
         inside = np.isfinite(sdf[free]) & (sdf[free] < 0) & (-sdf[free] <= radii[foot] + 1e-3)
         idx = np.flatnonzero(inside)
-        ray[idx], mf[idx] = foot[idx], radii[foot[idx]]
+        at = np.flatnonzero(free)[idx]
+        ray[at], mf[at] = foot[idx], radii[foot[idx]]
     stats["volume_samples"] = int(len(volume))
     stats["sdf_targets"] = int(np.isfinite(sdf).sum())
     stats["mf_targets"] = int(np.isfinite(mf).sum())

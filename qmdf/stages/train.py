@@ -117,6 +117,14 @@ class TrainConfig:
         doc="share of volume samples on the medial rays (inward from the surface "
         "samples to their medial balls, half by the axis); the rest near the points. Not for the paper route",
     )
+    axis_band: str = param(
+        "across",
+        choices=("across", "inward"),
+        doc="the ray samples by the axis: on both sides of it along the ray's line (where a mesh or a cloud's "
+        "Poisson surface gives every sample its distance), so each side of the axis is sampled alike; inward: "
+        "from the ray's own side only (before 2026-12-04: the torus's q valley 1.1e-3 inward of its axis, "
+        "where its outer side has 2.5x the rays)",
+    )
     lr: float = param(1e-3, gt=0)
     lr_final: float = param(1e-4, gt=0, doc="cosine decay down to this")
     losses: dict[str, Any] = param(
@@ -172,8 +180,8 @@ class Train(Stage):
     # 6: axis_q's p999 and max; 7: the mesh route's medial rays saved (sheet's and export's coverage reuse them)
     # 8: a cloud's Poisson surface's solid Euler characteristic recorded (sheet.match_topology)
     # 9: a cloud's Poisson surface from a fine octree where it does not fit noise (poisson_samples_per_node), and
-    # saved for the later stages (point_surface_as_data)
-    version = "9"
+    # saved for the later stages (point_surface_as_data); 10: the ray samples by the axis straddle it (axis_band)
+    version = "10"
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
@@ -291,6 +299,7 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
         poisson_samples_per_node=(cfg.poisson_samples_per_node, cfg.poisson_coarse_samples_per_node),
         zero_level=cfg.zero_level,
         mesh_rays=cfg.mesh_rays,
+        axis_band=cfg.axis_band,
     )
     sup.stats.update(why=why, seconds=round(time.perf_counter() - t0, 2))
     ctx.notes["supervision"] = {"route": route, "why": why}
