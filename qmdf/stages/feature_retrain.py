@@ -50,7 +50,8 @@ class FeatureRetrain(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON, "point_surface": MESH}
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
-    version = "3"  # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept
+    # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept; 4: Adam fused
+    version = "4"
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses

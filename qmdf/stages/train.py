@@ -180,7 +180,8 @@ class Train(Stage):
     # 6: axis_q's p999 and max; 7: the mesh route's medial rays saved (sheet's and export's coverage reuse them)
     # 8: a cloud's Poisson surface's solid Euler characteristic recorded (sheet.match_topology)
     # 9: a cloud's Poisson surface from a fine octree where it does not fit noise (poisson_samples_per_node), and
-    # saved for the later stages (point_surface_as_data); 10: the ray samples by the axis straddle it (axis_band)
+    # saved for the later stages (point_surface_as_data); 10: the ray samples by the axis straddle it (axis_band),
+    # Adam fused
     version = "10"
 
     @classmethod
