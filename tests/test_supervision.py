@@ -145,9 +145,9 @@ def test_routes_and_their_targets_on_the_torus():
 
 def test_the_samples_by_the_axis_lie_on_both_sides_of_it_alike():
     """The torus's outer side has more surface, so more rays: from each ray's side only, the samples by the axis
-    lie 1.75x as often outside the axis circle as inside it, and the fitted |sdf| ridge leans inward; across the
-    axis (the default) both sides are sampled alike, and those past the axis take the distance and the medial
-    radius of their own closest surface point."""
+    lie about 1.6x as often outside the axis circle as inside it (its outer half has 1.75x the area), and the
+    fitted |sdf| ridge leans inward; across the axis (the default) both sides are sampled alike, and those past
+    the axis take the distance and the medial radius of their own closest surface point."""
     torus = get_shape("torus").mesh(128)
     pts, nrm = _samples(torus, 8000)
     v, f = np.asarray(torus.vertices), np.asarray(torus.faces)

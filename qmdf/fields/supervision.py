@@ -186,7 +186,7 @@ def build_supervision(
         u = rng.random(n_rays)
         # half along the ray, half by the axis: from the ray's side only (``inward``), or on both sides of it along
         # the ray's line (``across``, where a surface gives every sample its distance): the side with more surface
-        # sends more rays (the torus's outer side 2.5x its inner's), and a one-sided band let the fit round the
+        # sends more rays (the torus's outer half 1.75x its inner half's), and a one-sided band let the fit round the
         # |sdf| ridge toward the sparser side, q's valley 1.1e-3 inward of the torus's axis
         across = axis_band == "across" and (route == "mesh" or proxy_mesh is not None)
         by_axis = 1.0 + 0.15 * (2.0 * u - 1.0) if across else 1.0 - 0.15 * u

@@ -123,7 +123,7 @@ class TrainConfig:
         doc="the ray samples by the axis: on both sides of it along the ray's line (where a mesh or a cloud's "
         "Poisson surface gives every sample its distance), so each side of the axis is sampled alike; inward: "
         "from the ray's own side only (before 2026-12-04: the torus's q valley 1.1e-3 inward of its axis, "
-        "where its outer side has 2.5x the rays)",
+        "whose outer half sends 1.75x the rays)",
     )
     lr: float = param(1e-3, gt=0)
     lr_final: float = param(1e-4, gt=0, doc="cosine decay down to this")
