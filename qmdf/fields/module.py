@@ -130,8 +130,8 @@ class FieldModule(L.LightningModule):
         return total
 
     def configure_optimizers(self):
-        # one fused kernel for every tensor: 6.9 -> 1.8 ms a step on 2 cores (the grid's 1.7M parameters), 10 s over
-        # 2,000 steps
+        # one fused kernel for every tensor: 6.9 -> 1.8 ms a step on 2 cores (the grid's 1.7M parameters), about 10 s
+        # over 2,000 steps by that count
         try:
             opt = torch.optim.Adam(self.net.parameters(), lr=self.lr, fused=True)
         except (RuntimeError, ValueError):  # a device without the fused kernel

@@ -168,6 +168,7 @@ def build_supervision(
     else:
         raise ValueError(f"unknown supervision route {route!r}")
 
+    surface_targets = route == "mesh" or proxy_mesh is not None  # every sample's sdf from a closed surface
     n_uniform = int(volume_samples * uniform_fraction)
     n_rays = int(volume_samples * ray_fraction) if radii is not None else 0
     n_near = volume_samples - n_uniform - n_rays
@@ -188,7 +189,7 @@ def build_supervision(
         # the ray's line (``across``, where a surface gives every sample its distance): the side with more surface
         # sends more rays (the torus's outer half 1.75x its inner half's), and a one-sided band let the fit round the
         # |sdf| ridge toward the sparser side, q's valley 1.1e-3 inward of the torus's axis
-        across = axis_band == "across" and (route == "mesh" or proxy_mesh is not None)
+        across = axis_band == "across" and surface_targets
         by_axis = 1.0 + 0.15 * (2.0 * u - 1.0) if across else 1.0 - 0.15 * u
         depth = np.where(np.arange(n_rays) % 2 == 0, u, by_axis) * r
         o = points if origins is None else origins
@@ -205,7 +206,7 @@ def build_supervision(
     if n_rays:
         free[len(volume) - n_rays :] = depth > r
         mf[free], ray[free] = np.nan, -1
-    if route == "mesh" or proxy_mesh is not None:
+    if surface_targets:
         # every sample from the surface, the rays' depths too (a radius can over-shoot the axis by tol / 2); its
         # foot is the ray origin nearest to its closest surface point
         v, f = mesh if route == "mesh" else proxy_mesh
