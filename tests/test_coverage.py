@@ -203,6 +203,11 @@ def test_envelope_fit_is_small_on_the_exact_disc_and_grows_as_it_falls_short():
     exact, short = fits
     assert exact["chamfer"] < 2e-3 and exact["hausdorff"] < 8e-3  # the disc's triangles and the mesh's facets
     assert short["chamfer"] > 3 * exact["chamfer"] and short["hausdorff"] > 0.025
+    # a MAT thinned to a point of radius 0 (an undertrained field) encloses nothing: it fits nothing
+    point = envelope_fit(
+        np.zeros((1, 3)), np.zeros(1), no_edges, np.zeros((0, 3), int), balls, np.random.default_rng(0)
+    )
+    assert point["chamfer"] == point["hausdorff"] == np.inf
 
 
 def test_cover_mat_keeps_coverage_only_where_the_envelope_fits_better(monkeypatch):

@@ -7,6 +7,7 @@ extraction stages can be proven on known answers, independently of training.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Protocol
 
@@ -14,6 +15,8 @@ import numpy as np
 import torch
 
 from qmdf.geometry.normalize import Normalization
+
+log = logging.getLogger(__name__)
 
 FORMAT = "qmdf-field/1"
 ANALYTIC_FORMAT = "qmdf-analytic-field/1"
@@ -42,6 +45,8 @@ class Field:
         self.normalization = normalization or Normalization.identity()
         self.meta = meta or {}
         self.chunk = chunk
+        # says in each stage's log where its field queries run: a GPU run that queries on the CPU is slow
+        log.info("field queries on %s, %d points a chunk", self.device, chunk)
 
     def evaluate(self, points: np.ndarray, grad: bool = False) -> dict[str, np.ndarray]:
         """sdf, mf, q (N,) in the unit box; with ``grad``, also sdf_grad, q_grad (N, 3)."""
@@ -80,7 +85,8 @@ class Field:
             {
                 "format": FORMAT,
                 **self.meta,
-                "state_dict": self.net.state_dict(),
+                # on the CPU, so a field trained on a GPU loads anywhere
+                "state_dict": {k: v.cpu() for k, v in self.net.state_dict().items()},
                 "normalization": self.normalization.to_dict(),
             },
             path,

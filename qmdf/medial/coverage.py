@@ -309,12 +309,16 @@ def envelope_fit(v, r, e, f, balls: SurfaceBalls, rng: np.random.Generator, samp
     """CD / HD (``metrics.chamfer_hausdorff``) between the medial mesh's envelope and the data: the balls'
     surface samples to the envelope (its union SDF), and points sampled exactly on the envelope to the data
     (``balls.distance``). What coverage must not make worse."""
-    from qmdf.geometry.envelope import EnvelopeUnion, sample_union_surface
+    from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh, sample_union_surface
     from qmdf.geometry.metrics import chamfer_hausdorff
 
     union = EnvelopeUnion(v, r, e, f)
+    mesh = reconstruct_mesh(union, 64)  # only to place samples on the envelope
+    if mesh is None:  # balls of no volume: their envelope fits nothing
+        inf = float("inf")
+        return chamfer_hausdorff(np.array([inf]), np.array([inf]))
     g = balls.samples if len(balls.samples) <= samples else balls.samples[rng.choice(len(balls.samples), samples)]
-    on_envelope = sample_union_surface(union, samples, rng, resolution=64)  # only to place samples on it
+    on_envelope = sample_union_surface(union, samples, rng, mesh=mesh)
     return chamfer_hausdorff(balls.distance(on_envelope)[0], np.abs(union.sdf(g)))
 
 

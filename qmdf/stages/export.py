@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, RAYS, file_kind
+from qmdf.errors import QmdfError
 from qmdf.medial.radii import RADIUS_SOURCES, membrane_to_mat
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
@@ -104,6 +105,14 @@ class Export(Stage):
         if not use_sheet and balls is not None and ctx.cfg.coverage_vertices:
             mat = self._covered(ctx, mat, balls)
         v, radii = mat.vertices, mat.radii
+        recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), ctx.cfg.reconstruction_resolution)
+        if recon is None:
+            raise QmdfError(
+                f"the MAT's balls enclose no volume at export.reconstruction_resolution "
+                f"{ctx.cfg.reconstruction_resolution} ({len(v)} vertices, largest radius {radii.max(initial=0.0):.3g} "
+                "in the unit box): the field learned too little inside (see the train stage's slices.png). "
+                "Train longer (train.steps) or check the input"
+            )
         ctx.save("mat", mat)
         in_units = MedialMesh(norm.to_input(v), norm.length_to_input(radii), mat.edges, mat.faces)
         write_ma(ctx.path("mat_input_units"), in_units)
@@ -111,7 +120,6 @@ class Export(Stage):
         write_ply_with_radius(ctx.path("mat_ply_input_units"), in_units)
         write_obj(ctx.path("mat_obj"), mat)
         write_obj(ctx.path("mat_obj_input_units"), in_units)
-        recon = reconstruct_mesh(EnvelopeUnion.from_mat(mat), ctx.cfg.reconstruction_resolution)
         ctx.save("reconstruction", recon)
         if ctx.cfg.picture:
             from qmdf.geometry.metrics import seam_edges

@@ -106,10 +106,9 @@ class FeatureRetrain(Stage):
         )
         module.net.load_state_dict(field.net.state_dict())
         device = fit(ctx, train_cfg, module, cfg.steps)
-        axis = (
-            axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and train_cfg.medial_field else None
-        )
-        out = Field(module.net.cpu(), ctx.load("normalization"), field.meta, device="cpu")
+        net = module.net.to(device)  # queried where it trained, as in train
+        axis = axis_q_stats(sampler.to(device), net) if sampler.has_rays and train_cfg.medial_field else None
+        out = Field(net, ctx.load("normalization"), field.meta, device=device)
         out.save(ctx.path("field"))
         before, after = field.evaluate(feats), out.evaluate(feats)
         stats = {

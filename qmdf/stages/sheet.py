@@ -173,7 +173,7 @@ class Sheet(Stage):
     # 11: rims carried out to the axis's end; 12: the centring's bisection starts at the vertex's own depth;
     # 13: the solid grown with the input's topology where no level of q has it; 14: tip_reach 0.003
     # 15: a cloud measured against its Poisson surface (train.point_surface_as_data)
-    version = "15"
+    version = "16"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -321,7 +321,17 @@ class Sheet(Stage):
                 rims["seconds"],
             )
         v = len(mat.vertices)
-        if not stats["compact"]:
+        if not (len(mat.faces) or len(mat.edges)) or not mat.radii.max(initial=0.0) > 0:
+            # an undertrained field (no inside) thins to a point: no sheet, whatever its chi
+            stats["compact"] = False
+            ctx.log.warning(
+                "the single sheet collapsed to %d vertices, %d edges, no faces, largest radius %.3g: the field's "
+                "inside is too thin for a MAT here (see the train stage's slices.png); export writes the membrane",
+                v,
+                len(mat.edges),
+                mat.radii.max(initial=0.0),
+            )
+        elif not stats["compact"]:
             ctx.log.warning(
                 "the single sheet is not compact: simplification stopped at %d vertices (target %d; the "
                 "link condition refused %s collapses on a tangled complex, %d seam edges). export writes "

@@ -231,12 +231,12 @@ class Train(Stage):
             ridge_start=cfg.ridge_start,
         )
         device = fit(ctx, cfg, module, cfg.steps)
-        axis = axis_q_stats(sampler.to("cpu"), module.net.cpu()) if sampler.has_rays and cfg.medial_field else None
+        # the axis statistics and the slices query the field where it trained (Lightning hands the net back on
+        # the CPU): on a GPU they took 6 s of the teacup's 39 s training stage on the CPU
+        net = module.net.to(device)
+        axis = axis_q_stats(sampler.to(device), net) if sampler.has_rays and cfg.medial_field else None
         field = Field(
-            module.net.cpu(),
-            ctx.load("normalization"),
-            {"backbone": cfg.backbone, "backbone_params": params},
-            device="cpu",
+            net, ctx.load("normalization"), {"backbone": cfg.backbone, "backbone_params": params}, device=device
         )
         field.save(ctx.path("field"))
         final = module.history[-1] if module.history else {}
