@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from skimage.measure import marching_cubes
 
-from qmdf.geometry.decimation import decimate
+from qmdf.geometry.decimation import decimate, prepass, topology
 
 
 def _genus_two_surface(n: int = 64) -> trimesh.Trimesh:
@@ -29,10 +29,10 @@ def surface():
     return mesh
 
 
-@pytest.mark.parametrize("workers", [1, 2])
-def test_decimation_keeps_the_topology_and_the_shape(surface, workers):
+@pytest.mark.parametrize("workers,prepass_faces", [(1, 0), (2, 0), (1, 6000)])
+def test_decimation_keeps_the_topology_and_the_shape(surface, workers, prepass_faces):
     target = 2000
-    v, f = decimate(surface.vertices, surface.faces, target, workers=workers)
+    v, f = decimate(surface.vertices, surface.faces, target, workers=workers, prepass_faces=prepass_faces)
     out = trimesh.Trimesh(v, f, process=True)
     assert len(surface.faces) > 4 * target
     assert target - 10 <= len(out.faces) <= target
@@ -68,3 +68,31 @@ def test_a_failed_second_process_falls_back_to_one_pass(surface, monkeypatch, ca
     assert "decimating in one pass" in caplog.text
     one = decimate(surface.vertices, surface.faces, 2000, workers=1)
     assert np.array_equal(f, one[1])
+
+
+def test_topology_reads_chi_components_and_closedness(surface):
+    f = np.asarray(surface.faces)
+    assert topology(f) == (-2, 1, True)
+    two = np.vstack([f, f + f.max() + 1])  # two disjoint copies
+    assert topology(two) == (-4, 2, True)
+    assert topology(f[1:]) == (-3, 1, False)  # one face less: a hole, one boundary loop
+    fast = prepass(surface.vertices, f, 6000)  # this surface's fast collapse keeps it: the prepass is used
+    assert fast is not None and len(fast[1]) <= 6000 and topology(fast[1]) == (-2, 1, True)
+
+
+def test_a_prepass_that_changes_the_topology_is_not_kept(surface, monkeypatch, caplog):
+    """The fast collapse has no link condition: where its result differs in chi, components or closedness, the
+    MeshLab pass runs from the full mesh, as without it."""
+    import logging
+
+    import fast_simplification
+
+    def holed(v, f, target_count):  # what a collapse that tore the surface would give
+        return v, f[: target_count - 1]
+
+    monkeypatch.setattr(fast_simplification, "simplify", holed)
+    with caplog.at_level(logging.INFO):
+        v, f = decimate(surface.vertices, surface.faces, 2000, prepass_faces=6000)
+    assert "changed the topology" in caplog.text
+    alone = decimate(surface.vertices, surface.faces, 2000)
+    assert np.array_equal(f, alone[1]) and np.array_equal(v, alone[0])

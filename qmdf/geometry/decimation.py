@@ -53,10 +53,52 @@ def _half(vertices: np.ndarray, faces: np.ndarray, target_faces: int):
     return v, f, np.rint(ids).astype(np.int64)
 
 
-def decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int, workers: int = 1):
+def topology(faces: np.ndarray) -> tuple[int, int, bool]:
+    """(Euler characteristic, connected components, closed: every edge in exactly two faces) of the mesh that
+    ``faces`` spans: the invariants a decimation must keep."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64)
+    used, local = np.unique(faces, return_inverse=True)
+    local = local.reshape(-1, 3)
+    edges = np.sort(local[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    keys = edges[:, 0] * len(used) + edges[:, 1]
+    _, counts = np.unique(keys, return_counts=True)
+    chi = len(used) - len(counts) + len(faces)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(used), len(used)))
+    components = connected_components(graph, directed=False)[0]
+    return int(chi), int(components), bool((counts == 2).all())
+
+
+def prepass(vertices: np.ndarray, faces: np.ndarray, target_faces: int):
+    """A fast quadric collapse (fast-simplification's: no link condition, about 1 us per face) down to
+    ``target_faces``, kept only where it changed none of ``topology``'s invariants; else None. On the teacup's
+    537k-face covering it takes 0.45 s to 200k faces, and MeshLab's topology-safe pass 2.8 s from there to 30k
+    against 8.3 s from the full mesh (the result 1.85e-4 from the marching-cubes surface on average against
+    1.57e-4; 2026-12-04)."""
+    import fast_simplification
+
+    v, f = fast_simplification.simplify(
+        np.asarray(vertices, np.float32), np.asarray(faces, np.int32), target_count=int(target_faces)
+    )
+    if len(f) == 0 or topology(f) != topology(faces):
+        return None
+    return np.asarray(v, np.float64), np.asarray(f, np.int64)
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int, workers: int = 1, prepass_faces: int = 0):
     """(vertices, faces) with at most about ``target_faces`` faces, the topology kept. ``workers``: 1 is MeshLab's
-    single pass, 2 splits the work over two processes (a mesh under 4x the target still takes one pass)."""
+    single pass, 2 splits the work over two processes (a mesh under 4x the target still takes one pass).
+    ``prepass_faces``: first a fast collapse to this many faces (``prepass``), where it keeps the topology
+    (0: never)."""
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    if target_faces < prepass_faces < len(faces):
+        fast = prepass(vertices, faces, prepass_faces)
+        if fast is None:
+            logging.getLogger(__name__).info("the fast decimation changed the topology; MeshLab's pass alone")
+        else:
+            vertices, faces = fast
     if workers < 2 or len(faces) < 4 * target_faces:
         return _collapse(vertices, faces, target_faces)[:2]
     centroids = vertices[faces].mean(1)

@@ -36,14 +36,14 @@ def mesh_stats(mesh) -> dict:
     }
 
 
-def decimate(mesh, target_faces: int, workers: int = 1):
+def decimate(mesh, target_faces: int, workers: int = 1, prepass_faces: int = 0):
     """Quadric edge collapse that keeps the topology (``qmdf.geometry.decimation``), so the covering stays closed
     with its genus."""
     import trimesh
 
     from qmdf.geometry.decimation import decimate as collapse
 
-    v, f = collapse(mesh.vertices, mesh.faces, target_faces, workers=workers)
+    v, f = collapse(mesh.vertices, mesh.faces, target_faces, workers=workers, prepass_faces=prepass_faces)
     out = trimesh.Trimesh(v, f, process=True)
     if out.is_watertight and out.volume < 0:
         out.invert()
@@ -77,6 +77,7 @@ def build_covering(
     speck_fraction: float = 0.01,
     max_faces: int = 30000,
     decimation_workers: int = 1,
+    prepass_faces: int = 0,
     log=None,
 ):
     """The covering mesh (specks dropped, decimated), its statistics and the grid nodes inside it (the
@@ -110,7 +111,7 @@ def build_covering(
     mesh = trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
     faces_before = len(mesh.faces)
     if max_faces and len(mesh.faces) > max_faces:
-        mesh = decimate(mesh, max_faces, decimation_workers)
+        mesh = decimate(mesh, max_faces, decimation_workers, prepass_faces)
     stats = mesh_stats(mesh)
     stats["faces_before_decimation"] = faces_before
     stats.update(
