@@ -29,7 +29,7 @@ def surface():
     return mesh
 
 
-@pytest.mark.parametrize("workers,prepass_faces", [(1, 0), (2, 0), (1, 6000)])
+@pytest.mark.parametrize("workers,prepass_faces", [(1, 0), (2, 0), (1, 5000)])
 def test_decimation_keeps_the_topology_and_the_shape(surface, workers, prepass_faces):
     target = 2000
     v, f = decimate(surface.vertices, surface.faces, target, workers=workers, prepass_faces=prepass_faces)
@@ -76,8 +76,8 @@ def test_topology_reads_chi_components_and_closedness(surface):
     two = np.vstack([f, f + f.max() + 1])  # two disjoint copies
     assert topology(two) == (-4, 2, True)
     assert topology(f[1:]) == (-3, 1, False)  # one face less: a hole, one boundary loop
-    fast = prepass(surface.vertices, f, 6000)  # this surface's fast collapse keeps it: the prepass is used
-    assert fast is not None and len(fast[1]) <= 6000 and topology(fast[1]) == (-2, 1, True)
+    fast = prepass(surface.vertices, f, 5000)  # this surface's fast collapse keeps it: the prepass is used
+    assert fast is not None and len(fast[1]) <= 5000 and topology(fast[1]) == (-2, 1, True)
 
 
 def test_a_prepass_that_changes_the_topology_is_not_kept(surface, monkeypatch, caplog):
@@ -92,7 +92,18 @@ def test_a_prepass_that_changes_the_topology_is_not_kept(surface, monkeypatch, c
 
     monkeypatch.setattr(fast_simplification, "simplify", holed)
     with caplog.at_level(logging.INFO):
-        v, f = decimate(surface.vertices, surface.faces, 2000, prepass_faces=6000)
+        v, f = decimate(surface.vertices, surface.faces, 2000, prepass_faces=5000)
     assert "changed the topology" in caplog.text
     alone = decimate(surface.vertices, surface.faces, 2000)
     assert np.array_equal(f, alone[1]) and np.array_equal(v, alone[0])
+
+
+def test_no_prepass_where_it_would_not_halve_the_mesh(surface, monkeypatch):
+    import fast_simplification
+
+    def never(*args, **kwargs):
+        raise AssertionError("the prepass ran on a mesh under twice its target")
+
+    monkeypatch.setattr(fast_simplification, "simplify", never)
+    v, f = decimate(surface.vertices, surface.faces, 2000, prepass_faces=6000)  # 11,876 faces < 12,000
+    assert np.array_equal(f, decimate(surface.vertices, surface.faces, 2000)[1])

@@ -90,10 +90,11 @@ def prepass(vertices: np.ndarray, faces: np.ndarray, target_faces: int):
 def decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int, workers: int = 1, prepass_faces: int = 0):
     """(vertices, faces) with at most about ``target_faces`` faces, the topology kept. ``workers``: 1 is MeshLab's
     single pass, 2 splits the work over two processes (a mesh under 4x the target still takes one pass).
-    ``prepass_faces``: first a fast collapse to this many faces (``prepass``), where it keeps the topology
-    (0: never)."""
+    ``prepass_faces``: first a fast collapse to this many faces (``prepass``), where it keeps the topology and
+    halves the mesh at least (0: never). Less saves nothing: the bunny's 360k-face covering took 12.0 s with
+    it to 200k and 11.5 s without (and its MAT's HD was 13.9e-3 against 10.7e-3; 2026-12-04)."""
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    if target_faces < prepass_faces < len(faces):
+    if target_faces < prepass_faces and 2 * prepass_faces <= len(faces):
         fast = prepass(vertices, faces, prepass_faces)
         if fast is None:
             logging.getLogger(__name__).info("the fast decimation changed the topology; MeshLab's pass alone")
