@@ -172,7 +172,8 @@ class Sheet(Stage):
     # 9: the covering's voids inside the shape filled; 10: the level of q with the input's topology;
     # 11: rims carried out to the axis's end; 12: the centring's bisection starts at the vertex's own depth;
     # 13: the solid grown with the input's topology where no level of q has it; 14: tip_reach 0.003
-    # 15: a cloud measured against its Poisson surface (train.point_surface_as_data)
+    # 15: a cloud measured against its Poisson surface (train.point_surface_as_data); 16: a sheet thinned to a
+    # point or to balls of no radius is not the MAT
     version = "16"
 
     def run(self, ctx: StageContext) -> None:
@@ -325,10 +326,11 @@ class Sheet(Stage):
             # an undertrained field (no inside) thins to a point: no sheet, whatever its chi
             stats["compact"] = False
             ctx.log.warning(
-                "the single sheet collapsed to %d vertices, %d edges, no faces, largest radius %.3g: the field's "
+                "the single sheet collapsed to %d vertices, %d edges, %d faces, largest radius %.3g: the field's "
                 "inside is too thin for a MAT here (see the train stage's slices.png); export writes the membrane",
                 v,
                 len(mat.edges),
+                len(mat.faces),
                 mat.radii.max(initial=0.0),
             )
         elif not stats["compact"]:
