@@ -148,10 +148,10 @@ def test_bench_speed_times_every_stage_beside_its_floor(cli):
     (row,) = json.loads((cli.cwd / "speed.json").read_text())
     stages = {s["stage"]: s for s in row["stages"]}
     assert list(stages) == ["sample", "train", "cover", "contract", "sheet", "export", "evaluate"]
-    for name in ("sample", "train", "cover", "contract", "export", "evaluate"):
+    for name in ("sample", "train", "cover", "contract", "sheet", "export", "evaluate"):
         s = stages[name]
         assert s["floor_s"] > 0 and s["wall_s"] > 0 and s["cpu_s"] >= 0 and s["peak_mb"] > 0 and s["floor"], name
-    assert stages["sheet"]["floor_s"] is None
+    assert "the membrane to" in stages["sheet"]["floor"]
     assert "one marching-cubes pass over 32^3" in proc.stdout and "ratio" in proc.stdout
 
 

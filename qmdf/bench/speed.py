@@ -8,6 +8,8 @@ Floors (what a stage cannot beat, not what it should equal):
   backward): no Lightning, no supervision, no data assembly, no second derivatives;
 - cover: one scikit-image marching-cubes pass over a grid of the cover's resolution (values already computed);
 - contract: one sparse Laplacian product per iteration over the covering (the per-iteration linear algebra);
+- sheet: the membrane decimated to the sheet's vertex count by one fast quadric collapse (fast-simplification:
+  no link condition, no thinning, no centring, no coverage);
 - export: one vectorised envelope evaluation of the MAT meshed at the reconstruction's resolution;
 - evaluate: one SciPy KD-tree built on and queried with the sample count.
 Time it with nothing else running: two torch processes on 2 cores slow each other far more than 2x.
@@ -68,6 +70,12 @@ def floors(run_dir: Path) -> dict[str, tuple[float, str]]:
             _laplacian_floor(run.load("covering"), int(cfg["contract"]["iterations"])),
             f"{cfg['contract']['iterations']} sparse Laplacian products",
         )
+    if "membrane" in run.artifacts and "sheet" in run.artifacts:
+        n = len(run.load("sheet").vertices)
+        out["sheet"] = (
+            _simplify_floor(run.load("membrane"), n),
+            f"the membrane to {n} vertices by one fast quadric collapse",
+        )
     if "mat" in run.artifacts:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
 
@@ -113,6 +121,14 @@ def _marching_cubes_floor(res: int) -> float:
     x, y, z = np.meshgrid(g, g, g, indexing="ij")
     values = np.sqrt(x * x + y * y + z * z) - 0.3
     return _timed(lambda: marching_cubes(values, 0.0))
+
+
+def _simplify_floor(membrane, vertices: int) -> float:
+    import fast_simplification
+
+    v, f = np.asarray(membrane.vertices, np.float32), np.asarray(membrane.faces, np.int32)
+    # a closed triangle mesh has about twice as many faces as vertices
+    return _timed(lambda: fast_simplification.simplify(v, f, target_count=min(len(f), 2 * vertices)))
 
 
 def _laplacian_floor(covering, iterations: int) -> float:
