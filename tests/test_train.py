@@ -332,6 +332,47 @@ def test_compiled_grid_encoding_is_the_torch_encoding(dtype):
     assert (compiled - reference).abs().max() < tol * max(1.0, float(reference.abs().max()))
 
 
+def test_compiled_grid_encodings_table_gradient_is_the_torch_one():
+    """A training step whose loss reads no gradient in x takes the compiled encoding with its own backward to the
+    table; it must be autograd's gradient of the torch encoding, on dense and hashed levels and beyond the bound."""
+    from qmdf.fields.backbones import Grid, GridConfig
+
+    g = Grid(GridConfig(levels=4, base_resolution=4, finest_resolution=40, log2_table_size=10)).double()
+    with torch.no_grad():
+        g.table.normal_()
+    assert bool(g.dense[0]) and not bool(g.dense[-1])
+    x = torch.rand(3000, 3, dtype=torch.float64) * 1.6 - 0.8
+    upstream = torch.randn(3000, g.cfg.levels * g.cfg.features, dtype=torch.float64)
+    (g.encode(x) * upstream).sum().backward()
+    compiled = g.table.grad.clone()
+    g.table.grad = None
+    (g.encode(x.clone().requires_grad_(True)) * upstream).sum().backward()  # x needs a gradient: the torch path
+    assert compiled.abs().max() > 1.0  # the scatter reached the table
+    assert torch.allclose(compiled, g.table.grad, rtol=0, atol=1e-10)
+
+
+def test_the_medial_field_of_the_volume_rows_only_is_the_same_function_and_gradient():
+    """A training step asks for mf of its volume samples only (``medial_from``), each point through its own head:
+    the values and every parameter's gradient must be those of the whole batch's mf restricted to those rows."""
+    from qmdf.fields.module import build_net
+
+    net = build_net("grid", {"finest_resolution": 16, "log2_table_size": 12}).double()
+    x = torch.rand(400, 3, dtype=torch.float64) - 0.5
+    sdf_all, mf_all = net(x)
+    sdf, mf = net(x, medial_from=150)
+    assert mf.shape == (250,) and torch.equal(sdf, sdf_all)
+    assert (sdf[150:] < 0).any() and (sdf[150:] > 0).any()  # both heads are exercised
+    assert torch.allclose(mf, mf_all[150:], rtol=0, atol=1e-14)
+    weights = torch.randn(250, dtype=torch.float64)
+    grads = []
+    for out in (mf, mf_all[150:]):
+        net.zero_grad()
+        (out * weights).sum().backward(retain_graph=True)
+        grads.append([p.grad.clone() for p in net.parameters() if p.grad is not None])
+    assert len(grads[0]) == len(grads[1]) > 0
+    assert all(torch.allclose(a, b, rtol=0, atol=1e-12) for a, b in zip(*grads))
+
+
 def test_a_clouds_poisson_surface_is_handed_on_as_the_data_the_radii_are_measured_to(compose_cfg, tmp_path):
     from qmdf.geometry.inside import mesh_distance
     from qmdf.geometry.sampling import sample_surface

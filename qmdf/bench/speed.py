@@ -97,16 +97,17 @@ def _train_floor(run, train_cfg: dict) -> float:
 
     meta = torch.load(run.path("field"), map_location="cpu", weights_only=True)
     net = build_net(meta["backbone"], meta["backbone_params"])
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-    batch = int(train_cfg["surface_batch"]) + int(train_cfg["volume_batch"])
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
+    surface = int(train_cfg["surface_batch"])
+    batch = surface + int(train_cfg["volume_batch"])
     x = torch.rand(batch, 3) - 0.5
     target = torch.zeros(batch)
     steps, probe = int(train_cfg["steps"]), 50
 
-    def loop():
+    def loop():  # the step the train stage takes (mf of the volume rows), without its sampling and bookkeeping
         for _ in range(probe):
-            sdf, mf = net(x)
-            loss = (sdf - target).abs().mean() + (mf - target).abs().mean()
+            sdf, mf = net(x, medial_from=surface)
+            loss = (sdf - target).abs().mean() + (mf - target[surface:]).abs().mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

@@ -1,9 +1,10 @@
-"""The grid encoding's forward pass compiled, for inference on the CPU.
+"""The grid encoding's forward pass and its gradient to the table compiled, for the CPU.
 
 It mirrors ``Grid.encode`` in backbones.py (the tested reference, which autograd differentiates twice for
 training): the same clamp, cells, smoothstep weights, dense and hashed indices. Torch builds the
 (N, levels, 8, 3) index and weight tensors as separate temporaries; one loop here does the same gathers
-without them, which is what the cover's and the contraction's millions of field queries cost."""
+without them, which is what the cover's and the contraction's millions of field queries cost, and what a
+training step whose loss reads no gradient of the field (the supervised route's) spends on the encoding."""
 
 from __future__ import annotations
 
@@ -48,3 +49,29 @@ def encode_grid(x, table, res, size, offset, dense, bound, out):
                 row = offset[lv] + flat
                 for f in range(n_feat):
                     out[n, base + f] += weight * table[row, f]
+
+
+@njit(cache=True, parallel=True)
+def encode_grid_backward(x, grad_out, res, size, offset, dense, bound, grad_table):
+    """grad_table += d(sum(out * grad_out)) / d table, ``out`` as ``encode_grid`` makes it. One thread a level:
+    each level's rows of the table are its own, so the scatter needs no atomics."""
+    n_levels, n_feat = res.shape[0], grad_table.shape[1]
+    for lv in prange(n_levels):
+        rl = res[lv]
+        stride = rl + 1
+        base = lv * n_feat
+        for n in range(x.shape[0]):
+            ci, wx = _corner_cell(x[n, 0], bound, rl)
+            cj, wy = _corner_cell(x[n, 1], bound, rl)
+            ck, wz = _corner_cell(x[n, 2], bound, rl)
+            for corner in range(8):
+                a, b, c = corner >> 2 & 1, corner >> 1 & 1, corner & 1
+                i, j, k = ci + a, cj + b, ck + c
+                weight = (wx if a else 1.0 - wx) * (wy if b else 1.0 - wy) * (wz if c else 1.0 - wz)
+                if dense[lv]:
+                    flat = i + stride * (j + stride * k)
+                else:
+                    flat = (i ^ (j * _P1) ^ (k * _P2)) % size[lv]
+                row = offset[lv] + flat
+                for f in range(n_feat):
+                    grad_table[row, f] += weight * grad_out[n, base + f]

@@ -50,8 +50,9 @@ class FeatureRetrain(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON, "point_surface": MESH}
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
-    # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept; 4: Adam fused
-    version = "4"
+    # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept; 4: Adam fused;
+    # 5: the encoding's compiled backward, mf of the volume samples only
+    version = "5"
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
