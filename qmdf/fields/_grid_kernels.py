@@ -24,6 +24,16 @@ def _corner_cell(xk, bound, rl):
     return c, t * t * (3.0 - 2.0 * t)
 
 
+@njit(cache=True, inline="always")
+def _corner_row(corner, ci, cj, ck, wx, wy, wz, stride, dense, size, offset):
+    """The table row of one of a cell's 8 corners (dense index or spatial hash) and its smoothstep weight."""
+    a, b, c = corner >> 2 & 1, corner >> 1 & 1, corner & 1
+    i, j, k = ci + a, cj + b, ck + c
+    weight = (wx if a else 1.0 - wx) * (wy if b else 1.0 - wy) * (wz if c else 1.0 - wz)
+    flat = i + stride * (j + stride * k) if dense else (i ^ (j * _P1) ^ (k * _P2)) % size
+    return offset + flat, weight
+
+
 @njit(cache=True, parallel=True)
 def encode_grid(x, table, res, size, offset, dense, bound, out):
     """out (N, levels * F) = the smoothstep-blended features of the 8 corners of each level's cell."""
@@ -39,14 +49,7 @@ def encode_grid(x, table, res, size, offset, dense, bound, out):
             for f in range(n_feat):
                 out[n, base + f] = 0.0
             for corner in range(8):
-                a, b, c = corner >> 2 & 1, corner >> 1 & 1, corner & 1
-                i, j, k = ci + a, cj + b, ck + c
-                weight = (wx if a else 1.0 - wx) * (wy if b else 1.0 - wy) * (wz if c else 1.0 - wz)
-                if dense[lv]:
-                    flat = i + stride * (j + stride * k)
-                else:
-                    flat = (i ^ (j * _P1) ^ (k * _P2)) % size[lv]
-                row = offset[lv] + flat
+                row, weight = _corner_row(corner, ci, cj, ck, wx, wy, wz, stride, dense[lv], size[lv], offset[lv])
                 for f in range(n_feat):
                     out[n, base + f] += weight * table[row, f]
 
@@ -65,13 +68,6 @@ def encode_grid_backward(x, grad_out, res, size, offset, dense, bound, grad_tabl
             cj, wy = _corner_cell(x[n, 1], bound, rl)
             ck, wz = _corner_cell(x[n, 2], bound, rl)
             for corner in range(8):
-                a, b, c = corner >> 2 & 1, corner >> 1 & 1, corner & 1
-                i, j, k = ci + a, cj + b, ck + c
-                weight = (wx if a else 1.0 - wx) * (wy if b else 1.0 - wy) * (wz if c else 1.0 - wz)
-                if dense[lv]:
-                    flat = i + stride * (j + stride * k)
-                else:
-                    flat = (i ^ (j * _P1) ^ (k * _P2)) % size[lv]
-                row = offset[lv] + flat
+                row, weight = _corner_row(corner, ci, cj, ck, wx, wy, wz, stride, dense[lv], size[lv], offset[lv])
                 for f in range(n_feat):
                     grad_table[row, f] += weight * grad_out[n, base + f]
