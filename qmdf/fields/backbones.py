@@ -86,7 +86,7 @@ class GridConfig:
         127,
         ge=2,
         doc="cells per side at the finest level. 127 (128^3 corners = 2^21, every level dense) puts the box's "
-        "q minima within 0.93e-3 of its axis (1.20e-3 at 80) and the ABC rods' |grad sdf| at 0.98 (0.72 at 80); "
+        "q minima within 0.93e-3 of its axis (1.20e-3 at 80) and abc_00000329's |grad sdf| at 0.98 (0.72 at 80); "
         "train 20-30% longer on the CPU (teacup 72 -> 88 s)",
     )
     log2_table_size: int = param(
