@@ -33,6 +33,7 @@ FAST = [
     "evaluate.resolution=24",
     "evaluate.picture=false",
     "pipeline.report=false",
+    "sheet.off_axis_wide=0",  # one sheet, not two (the torus chain of test_extraction builds both)
 ]
 
 

@@ -89,7 +89,7 @@ def test_analytic_field_answers_in_the_unit_box_of_its_input():
 
 
 def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
-    res = Pipeline(compose_cfg(*CHAIN), tmp_path / "run", tmp_path).run()
+    res = Pipeline(compose_cfg(*CHAIN, "sheet.off_axis_wide=3"), tmp_path / "run", tmp_path).run()
     stats = res.load("covering_stats")
     assert stats["watertight"] and stats["components"] == 1 and stats["genus"] == [1]
     assert stats["evaluated_nodes"] < 0.2 * stats["grid_nodes"]  # only the narrow band was evaluated
@@ -108,6 +108,10 @@ def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
     m = res.load("metrics")
     assert m["chi"] == 0 and m["chi_rule"] == "V - E + F of the medial mesh" and m["chamfer"] < 1e-3
     assert len(res.load("membrane_mat").faces) == len(membrane.faces)  # the membrane stays, for comparison
+    tried = res.load("sheet_stats")["off_axis"]  # both off-axis rules tried, the better fit kept
+    assert [r["off_axis"] for r in tried["tried"]] == [0.75, 3.0]
+    best = min((r for r in tried["tried"] if r["compact"] and r["chi"] == 0), key=lambda r: r["cd"])
+    assert tried["kept"] == best["off_axis"]
     run = res.run_dir / "05_export"
     ply = trimesh.load(run / "mat_ply.ply", process=False)
     assert np.allclose(ply.metadata["_ply_raw"]["vertex"]["data"]["radius"], mat.radii, atol=1e-6)

@@ -412,3 +412,24 @@ def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
     # the tree still follows the ring: most of the circle's length is kept
     on_ring = np.abs(np.hypot(mat.vertices[:, 0], mat.vertices[:, 1]) - 0.3) < 2 * H
     assert on_ring.sum() > 0.8 * (2 * np.pi * 0.3 / H)
+
+
+def test_pick_sheet_prefers_compact_then_the_shapes_chi_then_the_better_fit():
+    """Of several sheets of one shape, a compact one beats a better-fitting one that is not; then the input's
+    chi; then the fit (here a fake fit: the largest radius)."""
+    from qmdf.geometry.ma_format import MedialMesh
+    from qmdf.medial.sheet import pick_sheet
+
+    def sheet(radius, compact, chi):
+        v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+        mat = MedialMesh(v, np.full(3, radius), np.zeros((0, 2), int), np.array([[0, 1, 2]]))
+        return mat, {"compact": compact, "after": {"chi": chi}}
+
+    def fit(v, r, e, f):
+        return float(r.max())
+
+    loose, wrong_chi, right, worse = sheet(0.1, False, 1), sheet(0.2, True, 0), sheet(0.3, True, 1), sheet(0.4, True, 1)
+    kept, rows = pick_sheet([loose, wrong_chi, worse, right], fit, target_chi=1)
+    assert kept == 3 and [r["cd"] for r in rows] == [0.1, 0.2, 0.4, 0.3]
+    assert pick_sheet([loose, wrong_chi, worse, right], fit)[0] == 1  # no known chi: the best compact fit
+    assert pick_sheet([loose], fit, target_chi=0)[0] == 0  # nothing better: the only one
