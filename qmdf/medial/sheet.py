@@ -339,17 +339,15 @@ def pick_sheet(candidates: list, fit_of, target_chi: int | None = None) -> tuple
     """Which of several ``(MedialMesh, stats)`` sheets of one shape to keep: a compact one before one that is not,
     then one with ``target_chi``, then the one whose envelope fits the data best (``fit_of(vertices, radii, lone
     edges, faces) -> CD``). Returns its index and, per candidate, what decided."""
-    rows = []
-    for mat, stats in candidates:
-        chi = stats["after"]["chi"]
-        rows.append(
-            {
-                "compact": bool(stats["compact"]),
-                "chi": int(chi),
-                "vertices": int(len(mat.vertices)),
-                "cd": float(fit_of(mat.vertices, mat.radii, mat.lone_edges(), mat.faces)),
-            }
-        )
+    rows = [
+        {
+            "compact": bool(stats["compact"]),
+            "chi": int(stats["after"]["chi"]),
+            "vertices": len(mat.vertices),
+            "cd": float(fit_of(mat.vertices, mat.radii, mat.lone_edges(), mat.faces)),
+        }
+        for mat, stats in candidates
+    ]
     ranks = [(not r["compact"], target_chi is not None and r["chi"] != target_chi, r["cd"]) for r in rows]
     return min(range(len(rows)), key=ranks.__getitem__), rows
 
