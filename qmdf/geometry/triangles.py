@@ -66,3 +66,15 @@ def facet_tolerance(vertices: np.ndarray, faces: np.ndarray) -> float:
     v, f = np.asarray(vertices), np.asarray(faces)
     edges = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
     return float(3e-4 + 0.08 * np.median(edges))
+
+
+def barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of points ``p`` (K, 3) in their triangles ``tri`` (K, 3, 3) (least squares: of
+    the point's projection onto the triangle's plane; negative outside the triangle)."""
+    e1, e2, w = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], p - tri[:, 0]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
+    det = np.maximum(d11 * d22 - d12 * d12, 1e-30)
+    b1 = (d22 * w1 - d12 * w2) / det
+    b2 = (d11 * w2 - d12 * w1) / det
+    return np.column_stack([1 - b1 - b2, b1, b2])

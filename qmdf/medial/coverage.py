@@ -19,6 +19,8 @@ from typing import Callable
 
 import numpy as np
 
+from qmdf.geometry.triangles import barycentric
+
 
 @dataclass
 class SurfaceBalls:
@@ -87,17 +89,6 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=2)
 
 
-def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates of points ``p`` (K, 3) in their triangles ``tri`` (K, 3, 3) (least squares)."""
-    e1, e2, w = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], p - tri[:, 0]
-    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
-    w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
-    det = np.maximum(d11 * d22 - d12 * d12, 1e-30)
-    b1 = (d22 * w1 - d12 * w2) / det
-    b2 = (d11 * w2 - d12 * w1) / det
-    return np.column_stack([1 - b1 - b2, b1, b2])
-
-
 def _picks(samples: np.ndarray, shortfall: np.ndarray, radii: np.ndarray, tolerance: float, spacing: float, n: int):
     """Up to ``n`` samples outside the envelope by more than ``tolerance``, farthest first, none within
     max(spacing, r / 2) of one taken before (the ball it brings covers about that much of the surface)."""
@@ -146,7 +137,7 @@ def _insert(v, r, lone, faces, points, point_radii, protrudes):
     for k, f in enumerate(faces):
         for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
             edge_faces.setdefault((min(a, b), max(a, b)), []).append(k)
-    bary = _barycentric(foot, v[faces[np.maximum(near_face, 0)]]) if len(faces) else np.zeros((len(points), 3))
+    bary = barycentric(foot, v[faces[np.maximum(near_face, 0)]]) if len(faces) else np.zeros((len(points), 3))
     # each point's plan: the lone edge it splits, or the faces it splits (with the split face edge, if any)
     plans, corners = [], []
     for k in range(len(points)):

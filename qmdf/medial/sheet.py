@@ -379,6 +379,7 @@ def simplified_sheet(
     refine_vertices: int = 0,
     fit_of=None,
     extend_of=None,
+    fit_envelope_of=None,
 ):
     """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
     ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
@@ -397,8 +398,10 @@ def simplified_sheet(
     MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
     sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Last, with
     ``extend_of(vertices, radii, lone edges, faces, fixed) -> (vertices, radii, stats)``, the rims are carried out
-    to the axis's end (``medial.rims``), the tips fixed. Returns the ``MedialMesh`` and its stats (before and after
-    simplification)."""
+    to the axis's end (``medial.rims``), the tips fixed. Then, with ``fit_envelope_of(vertices, radii, lone
+    edges, faces, fixed) -> (vertices, radii, stats)``, the spheres are fitted to the data's surface
+    (``medial.envelope_fit``), the tips fixed, kept only where ``fit_of`` says the fit improved. Returns the
+    ``MedialMesh`` and its stats (before and after simplification)."""
     from qmdf.geometry.ma_format import MedialMesh
     from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
     from qmdf.medial.simplify import simplify_medial_mesh
@@ -529,6 +532,14 @@ def simplified_sheet(
                     v, radii, e, f = before
     if extend_of is not None:
         v, radii, stats["rims"] = extend_of(v, radii, e, f, near_tips(v))
+    if fit_envelope_of is not None:
+        fitted, fitted_radii, fit_stats = fit_envelope_of(v, radii, e, f, near_tips(v))
+        if fit_of is not None:
+            cd_before, cd_after = fit_of(v, radii, e, f), fit_of(fitted, fitted_radii, e, f)
+            fit_stats.update(cd_before=cd_before, cd_after=cd_after, kept=bool(cd_after < cd_before))
+        if fit_stats.get("kept", True):
+            v, radii = fitted, fitted_radii
+        stats["envelope_fit"] = fit_stats
     mat = MedialMesh(v, radii, e, f).with_face_edges()
     stats["compact"] = compact(len(v))
     stats["after"] = {
