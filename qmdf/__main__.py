@@ -18,12 +18,13 @@ from pathlib import Path
 from qmdf.rundir import ENV_VAR, conf_dir, new_run_name
 
 log = logging.getLogger("qmdf")
+SUSPECT_EXIT_CODE = 3  # a run that finished but whose verdict is suspect, under pipeline.strict
 
 
 def summary_line(result) -> str:
     m = result.manifest
     parts = [f"{s['name']} {s['status']} {s['seconds']:.2f}s" for s in m["stages"]]
-    line = f"qmdf {m['status']}: " + ", ".join(parts)
+    line = f"qmdf {m['status']}" + (f" (quality: {m['quality']})" if m.get("quality") else "") + ": " + ", ".join(parts)
     if "metrics" in result.artifacts:
         mm = result.load("metrics")
         line += f" | CD {mm['chamfer']:.3e} HD {mm['hausdorff']:.3e} chi {mm['chi']}"
@@ -70,6 +71,13 @@ def task(cfg) -> dict:
     line = summary_line(result)
     logging.getLogger("qmdf.summary").info("%s", line)
     print(line, flush=True)
+    if result.manifest.get("quality") == "suspect":
+        reasons = "; ".join(result.manifest.get("quality_reasons") or [])
+        log.warning("quality: suspect: the result contradicts its input (%s); see report.html", reasons)
+        if cfg.pipeline.get("strict"):
+            log.error("pipeline.strict=true: a suspect result ends the run with exit code 3")
+            sys.stderr.flush()
+            raise SystemExit(SUSPECT_EXIT_CODE)
     return result.manifest
 
 

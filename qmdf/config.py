@@ -80,6 +80,11 @@ class PipelineConfig:
         doc="write report.html (an interactive 3D view, pictures, metrics, stage times, "
         "config) into the run folder when the run ends",
     )
+    strict: bool = param(
+        False,
+        doc="exit with code 3 when the run's own verdict is 'quality: suspect' (the reasons are in the log, "
+        "metrics.json, manifest.json and report.html); the outputs are still written",
+    )
 
 
 @dataclass

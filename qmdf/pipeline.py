@@ -297,6 +297,9 @@ class Pipeline:
             self._write_manifest(manifest)
             raise
         manifest["status"] = "complete" if not plan.not_run else "partial"
+        if "metrics" in result.artifacts:  # the run's verdict on itself (qmdf.verdict), beside its status
+            found = result.load("metrics").get("verdict") or {}
+            manifest["quality"], manifest["quality_reasons"] = found.get("quality", "unchecked"), found.get("reasons")
         manifest["finished"] = dt.datetime.now().isoformat(timespec="microseconds")
         self._write_manifest(manifest)
         if self.cfg.pipeline.get("report", True):

@@ -178,6 +178,17 @@ def _metrics_table(metrics: dict, stem: str) -> str:
     return "\n".join(out)
 
 
+def _quality(manifest: dict) -> str:
+    """The run's verdict on itself; a suspect one in red with its reasons."""
+    quality = manifest.get("quality")
+    if not quality:
+        return ""
+    if quality != "suspect":
+        return f"<p>quality: <b>{html.escape(quality)}</b></p>"
+    items = "".join(f"<li>{html.escape(r)}</li>" for r in manifest.get("quality_reasons") or [])
+    return f"<p style='color:#b00'>quality: <b>suspect</b>: the result contradicts its input</p><ul>{items}</ul>"
+
+
 def _stage_table(manifest: dict) -> str:
     out = ["<table><tr><th>stage</th><th>status</th><th>wall s</th><th>CPU s</th><th>peak MB</th></tr>"]
     for s in manifest.get("stages", []):
@@ -206,6 +217,7 @@ def write_report(run_dir: Path | str) -> Path:
         f"<h1>qmdf run {html.escape(str(run_dir))}</h1>",
         f"<p>status: <b>{html.escape(str(m.get('status')))}</b>"
         f"{' (' + html.escape(str(m.get('error'))) + ')' if m.get('error') else ''}</p>",
+        _quality(m),
     ]
     parts.append(figure(run).to_html(full_html=False, include_plotlyjs=True, div_id="mat-view"))
     config_path = run_dir / "config.yaml"

@@ -23,6 +23,7 @@ FAST = [
     "train.backbone=mlp",
     "train.backbones.mlp.width=32",
     "train.volume_samples=5000",
+    "train.poisson_depth=6",
     "train.picture=false",
     "cover.resolution=32",
     "cover.eps=0.05",

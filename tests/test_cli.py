@@ -18,7 +18,7 @@ def test_default_run_on_the_embedded_shape(cli):
     assert proc.returncode == 0, proc.stderr
     (m,) = manifests(cli.cwd / "runs")
     assert m["stages"][0]["name"] == "sample" and m["stages"][0]["status"] == "ran"
-    assert proc.stdout.startswith(f"qmdf {m['status']}: sample ran")
+    assert proc.stdout.startswith(f"qmdf {m['status']} (quality: {m['quality']}): sample ran")
     run_dir = cli.cwd / "runs" / m["_path"].split("/runs/")[1].rsplit("/", 1)[0]
     log = (run_dir / "qmdf.log").read_text()
     assert log.count("[sample] running") == 1

@@ -270,6 +270,51 @@ def test_coverage_that_fits_worse_is_not_kept():
     assert runs["judged"][1]["coverage"]["kept"] is False and runs["judged"][0].radii.max() == 0.05
 
 
+def test_an_envelope_fit_is_kept_only_where_it_fits_better():
+    """simplified_sheet hands the finished sheet and its tips to fit_envelope_of, keeps the fitted spheres only
+    where fit_of says the fit improved, and records the kept sheet's CD for pick_sheet."""
+    from qmdf.medial.sheet import simplified_sheet
+
+    q = np.abs(Z) + np.maximum(R - 0.4, 0)
+    v, f = _disc_membrane(0.4)
+    grid = {"inside": q < 0.03, "lo": LO, "spacing": SPACING, "eps": 0.03}
+    seen = {}
+
+    def grown(scale):
+        def fit_envelope_of(v, r, e, f, fixed):
+            seen["fixed"] = fixed
+            return v + [0, 0, 0.01], r * scale, {"mean_distance": [1.0, 0.5], "iteration": 1}
+
+        return fit_envelope_of
+
+    def fit_of(v, r, e, f):  # a fake fit: the closer the largest radius to 0.06, the better
+        return abs(float(r.max()) - 0.06)
+
+    runs = {}
+    for scale in (1.2, 2.0):
+        runs[scale] = simplified_sheet(
+            grid,
+            lambda p: {
+                "q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0),
+                "sdf": -0.1 + 0 * p[:, 0],
+            },
+            v,
+            f,
+            lambda x: np.full(len(x), 0.05),
+            target_vertices=0,
+            tips=np.array([[0.0, 0.0, 0.0]]),
+            tip_reach=0.05,
+            fit_of=fit_of,
+            fit_envelope_of=grown(scale),
+        )
+        assert seen["fixed"] is not None and 0 < seen["fixed"].sum() < len(seen["fixed"])
+    better, worse = runs[1.2], runs[2.0]
+    assert better[1]["envelope_fit"]["kept"] and np.allclose(better[0].radii, 0.06)
+    assert np.isclose(better[1]["cd"], 0.0) and np.allclose(better[0].vertices[:, 2], 0.01)
+    assert worse[1]["envelope_fit"]["kept"] is False and np.allclose(worse[0].radii, 0.05)
+    assert np.isclose(worse[1]["cd"], 0.01) and np.allclose(worse[0].vertices[:, 2], 0.0, atol=1e-9)
+
+
 def test_valley_squares_and_edges_are_where_q_is_lowest_across_them():
     """A slab five nodes thick with q lowest on one node layer: the cubes collapse onto that layer, leaving walls
     across the slab (squares facing x or y) that only the keep level held; a wall is a valley only where q is
@@ -433,3 +478,7 @@ def test_pick_sheet_prefers_compact_then_the_shapes_chi_then_the_better_fit():
     assert kept == 3 and [r["cd"] for r in rows] == [0.1, 0.2, 0.4, 0.3]
     assert pick_sheet([loose, wrong_chi, worse, right], fit)[0] == 1  # no known chi: the best compact fit
     assert pick_sheet([loose], fit, target_chi=0)[0] == 0  # nothing better: the only one
+    # a sheet whose CD simplified_sheet measured already is not measured again
+    measured = (worse[0], {**worse[1], "cd": 0.05})
+    kept, rows = pick_sheet([right, measured], fit, target_chi=1)
+    assert kept == 1 and rows[1]["cd"] == 0.05

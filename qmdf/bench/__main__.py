@@ -11,6 +11,7 @@ SUITES = {
     "features": "qmdf.bench.features",
     "speed": "qmdf.bench.speed",
     "faults": "qmdf.bench.faults",
+    "clouds": "qmdf.bench.clouds",
 }
 
 

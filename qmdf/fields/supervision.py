@@ -12,7 +12,8 @@
   points route below is taken. With ``proxy="points"``: sign from
   the cloud's winding number, the distance to the points as a metric target where it is one (farther than the
   sampling's gaps, where the winding number is decided), rays from the points.
-- ``raw_points``: no normals; estimated and oriented (plane fits, spanning tree, winding-number patches), then as
+- ``raw_points``: no normals; estimated by plane fits and oriented by the winding number's normal consistency
+  (``orientation="wnnc"``) or by a spanning tree and winding-number patches (``"propagation"``), then as
   ``oriented_points``.
 - ``paper``: the paper's setting: the raw points and nothing else (no normals, no distances, no medial targets).
 
@@ -100,6 +101,7 @@ def build_supervision(
     zero_level: str = "input",
     mesh_rays: str = "smooth",
     axis_band: str = "across",
+    orientation: str = "wnnc",
 ) -> Supervision:
     """The training targets of ``route`` (see the module doc). Points are in the unit box."""
     stats: dict = {"route": route}
@@ -116,7 +118,7 @@ def build_supervision(
         radii = inward_medial_radii(points, ray_normals, lambda q: distance(q)[0], tol=tol, iterations=16)
     elif route in ("oriented_points", "raw_points"):
         if route == "raw_points" or normals is None:
-            normals, residual, info = estimate_oriented_normals(points)
+            normals, residual, info = estimate_oriented_normals(points, method=orientation)
         else:
             _, residual = pca_normals(points)
             normals, info = orient_by_winding(points, _unit(normals))

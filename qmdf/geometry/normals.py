@@ -1,4 +1,5 @@
-"""Normals of a raw point cloud: estimated by local plane fits, oriented by propagation over a minimum spanning
+"""Normals of a raw point cloud: estimated by local plane fits, oriented globally by the winding number's normal
+consistency (``qmdf.geometry.winding_orientation``, the default) or, as before, by propagation over a minimum spanning
 tree (Hoppe et al. 1992), then checked globally with the point cloud's winding number (Barill et al. 2018): a
 normal points out when the winding number is higher a small step behind it than a step ahead of it. The same
 check repairs the normals a file comes with (a scanner's can point inward, in patches or all together)."""
@@ -190,12 +191,39 @@ def orient_by_winding(
     return out, {"flipped_all": flipped_all, "flipped_points": flipped, "still_inconsistent": still}
 
 
-def estimate_oriented_normals(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Outward normals of a raw cloud: plane fits, tree propagation, winding check. Also the local noise level."""
+ORIENTATIONS = ("wnnc", "propagation")
+
+
+def inconsistent_share(points: np.ndarray, normals: np.ndarray) -> float:
+    """The share of normals the cloud's own winding number contradicts (inside ahead of the point, or a fall from
+    ahead to behind): the sparse teacup 0.1% by WNNC, 5-7% by propagation. A local test: it cannot see a whole
+    closed part turned inside out (each patch's own dipoles still rise behind it)."""
+    step = np.clip(local_spacing(points, k=8, low=0, high=1), 5e-3, 0.03)
+    ahead, behind = winding_ahead_behind(points, normals, step)
+    return float(((ahead > 0.5) | (behind - ahead < -0.5)).mean())
+
+
+def estimate_oriented_normals(
+    points: np.ndarray, k: int = 16, method: str = "wnnc"
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Outward normals of a raw cloud and the local noise level (the plane fits' residual). ``wnnc``: the
+    winding number's normal consistency (``qmdf.geometry.winding_orientation``), global, right on walls as thin
+    as the sampling gap; ``propagation``: plane fits oriented along a spanning tree, then the winding checks
+    above (the version before 2026-12-06: 56% of the sparse teacup's normals right)."""
     normals, residual = pca_normals(points, k)
+    if method == "wnnc":
+        from qmdf.geometry.winding_orientation import wnnc_normals
+
+        normals, info = wnnc_normals(points, plane_normals=normals)
+        info["inconsistent_share"] = inconsistent_share(points, normals)
+        return normals, residual, info
+    if method != "propagation":
+        raise ValueError(f"unknown orientation {method!r}; one of {ORIENTATIONS}")
     normals, patch = orient_by_tree(points, normals)
     step = np.clip(np.maximum(local_spacing(points, k=8, low=0, high=1), 3 * np.median(residual)), 5e-3, 0.03)
     normals, turned = flip_patches(points, normals, patch, step)
     normals, info = orient_by_winding(points, normals, step)
+    info["method"] = "propagation"
+    info["inconsistent_share"] = info["still_inconsistent"] / max(len(points), 1)
     info["patches"], info["patches_turned"] = int(patch.max() + 1), turned
     return normals, residual, info

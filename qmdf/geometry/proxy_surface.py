@@ -38,10 +38,29 @@ def poisson_surface(
     solver's documented use of the parameter: small for noise-free samples, larger for noisy ones). ``info``, when
     given, gets which one was taken and why."""
     info = {} if info is None else info
-    fine = _screened_poisson(points, normals, depth, point_weight, samples_per_node)
+    for scale in DOMAIN_SCALES:
+        chosen = _fine_or_coarse(
+            points, normals, depth, point_weight, samples_per_node, coarse_samples_per_node, scale, info
+        )
+        if chosen is None or chosen[0].is_watertight:
+            break
+    info["domain_scale"] = scale
+    return None if chosen is None else _closed_main_parts(chosen[0], min_area_share, info)
+
+
+#: The solver's domain, in widths of the cloud's bounding box: MeshLab's 1.1 first; where the cloud is open (a side
+#: cut away) the surface reaches that domain's wall and is clipped open, so it is solved again in a wider one,
+#: where it closes across the gap (the cut cyclide: open at 1.1, a closed ring of chi 0 at 1.5).
+DOMAIN_SCALES = (1.1, 1.5)
+
+
+def _fine_or_coarse(points, normals, depth, point_weight, samples_per_node, coarse_samples_per_node, scale, info):
+    """The fine octree's surface where it has the coarse one's pieces and solid chi, else the coarse one's."""
+    fine = _screened_poisson(points, normals, depth, point_weight, samples_per_node, scale)
     info["samples_per_node"] = samples_per_node
+    info.pop("why", None)
     if coarse_samples_per_node != samples_per_node:
-        coarse = _screened_poisson(points, normals, depth, point_weight, coarse_samples_per_node)
+        coarse = _screened_poisson(points, normals, depth, point_weight, coarse_samples_per_node, scale)
         if coarse is not None:
             shape = {name: (s[1], solid_euler(s[0].faces)) for name, s in (("fine", fine), ("coarse", coarse)) if s}
             if shape.get("fine") != shape["coarse"]:
@@ -53,10 +72,10 @@ def poisson_surface(
                     "noise".format(*shape["fine"], *shape["coarse"])
                 )
                 fine = coarse
-    return None if fine is None else _closed_main_parts(fine[0], min_area_share)
+    return fine
 
 
-def _screened_poisson(points, normals, depth, point_weight, samples_per_node):
+def _screened_poisson(points, normals, depth, point_weight, samples_per_node, scale=1.1):
     """The solver's surface as a trimesh and its number of pieces; None when it fails or leaves nothing."""
     import pymeshlab
     import trimesh
@@ -70,7 +89,11 @@ def _screened_poisson(points, normals, depth, point_weight, samples_per_node):
     )
     try:
         ms.generate_surface_reconstruction_screened_poisson(
-            depth=int(depth), pointweight=float(point_weight), samplespernode=float(samples_per_node), preclean=True
+            depth=int(depth),
+            pointweight=float(point_weight),
+            samplespernode=float(samples_per_node),
+            preclean=True,
+            scale=float(scale),
         )
     except pymeshlab.PyMeshLabException:
         return None
@@ -82,12 +105,13 @@ def _screened_poisson(points, normals, depth, point_weight, samples_per_node):
     return mesh, int(mesh.body_count)
 
 
-def _closed_main_parts(mesh, min_area_share: float) -> tuple[np.ndarray, np.ndarray] | None:
+def _closed_main_parts(mesh, min_area_share: float, info: dict) -> tuple[np.ndarray, np.ndarray] | None:
     import trimesh
 
     parts = mesh.split(only_watertight=False)
     total = sum(p.area for p in parts)
     kept = [p for p in parts if p.area >= min_area_share * total]
+    info["pieces"] = len(kept)
     if not kept:
         return None
     mesh = trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]

@@ -338,13 +338,14 @@ def single_sheet(
 def pick_sheet(candidates: list, fit_of, target_chi: int | None = None) -> tuple[int, list[dict]]:
     """Which of several ``(MedialMesh, stats)`` sheets of one shape to keep: a compact one before one that is not,
     then one with ``target_chi``, then the one whose envelope fits the data best (``fit_of(vertices, radii, lone
-    edges, faces) -> CD``). Returns its index and, per candidate, what decided."""
+    edges, faces) -> CD``; a sheet's own ``stats["cd"]`` where ``simplified_sheet`` measured it already). Returns its
+    index and, per candidate, what decided."""
     rows = [
         {
             "compact": bool(stats["compact"]),
             "chi": int(stats["after"]["chi"]),
             "vertices": len(mat.vertices),
-            "cd": float(fit_of(mat.vertices, mat.radii, mat.lone_edges(), mat.faces)),
+            "cd": float(stats["cd"] if "cd" in stats else fit_of(mat.vertices, mat.radii, mat.lone_edges(), mat.faces)),
         }
         for mat, stats in candidates
     ]
@@ -537,6 +538,7 @@ def simplified_sheet(
         if fit_of is not None:
             cd_before, cd_after = fit_of(v, radii, e, f), fit_of(fitted, fitted_radii, e, f)
             fit_stats.update(cd_before=cd_before, cd_after=cd_after, kept=bool(cd_after < cd_before))
+            stats["cd"] = min(cd_before, cd_after)  # the kept sheet's, for pick_sheet
         if fit_stats.get("kept", True):
             v, radii = fitted, fitted_radii
         stats["envelope_fit"] = fit_stats

@@ -67,10 +67,12 @@ class Evaluate(Stage):
         "reconstruction": MESH,
         "field": FIELD,
         "normalization": NORMALIZATION,
+        "training": JSON,
+        "point_surface": MESH,
     }
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
-    version = "2"  # 2: the field's sign accuracy and metric inside
+    version = "3"  # 2: the field's sign accuracy and metric inside; 3: the run's verdict (qmdf.verdict)
 
     def fingerprint(self, ctx: StageContext) -> str:
         return file_digest(self._reference_path(ctx)) if ctx.cfg.reference else ""
@@ -100,6 +102,7 @@ class Evaluate(Stage):
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.evaluate import score_mat
+        from qmdf.verdict import verdict
 
         mat = ctx.load("mat")
         ref_v, ref_f, what = self._reference(ctx)
@@ -134,6 +137,9 @@ class Evaluate(Stage):
                 metrics["field"]["sign_accuracy"],
                 metrics["field"]["grad_sdf_inside"],
             )
+        metrics["verdict"] = verdict(evidence(ctx, metrics, recon, ref_v, ref_f))
+        for reason in metrics["verdict"]["reasons"]:
+            ctx.log.warning("quality: suspect: %s", reason)
         ctx.save("metrics", metrics)
         if given is None:
             ctx.save("reconstruction", recon)
@@ -146,3 +152,28 @@ class Evaluate(Stage):
             metrics["faces"],
             metrics["reference"],
         )
+
+
+def evidence(ctx: StageContext, metrics: dict, recon, ref_v: np.ndarray, ref_f: np.ndarray | None):
+    """What the verdict checks (``qmdf.verdict.Evidence``), from the run's artifacts. The input's solid: the
+    reference mesh where it is closed, else a cloud's closed Poisson surface."""
+    import trimesh
+
+    from qmdf.geometry.metrics import solid_euler
+    from qmdf.verdict import Evidence, zero_set_distance
+
+    e = Evidence(chi=metrics["chi"], vertices=metrics["vertices"])
+    e.sign_accuracy = (metrics.get("field") or {}).get("sign_accuracy")
+    e.volume = float(recon.volume) if recon is not None and recon.is_watertight else None
+    sup = (ctx.load("training").get("supervision") or {}) if ctx.has("training") else {}
+    e.orientation, e.proxy = sup.get("orientation"), sup.get("proxy")
+    e.proxy_pieces = (sup.get("proxy_surface") or {}).get("pieces")
+    if ctx.has("field") and ctx.has("points"):
+        points = ctx.load("points").points
+        e.zero_set_distance = zero_set_distance(ctx.load("field").evaluate(points)["sdf"])
+    solid = trimesh.Trimesh(ref_v, ref_f, process=False) if ref_f is not None else None
+    if (solid is None or not solid.is_watertight) and ctx.has("point_surface"):
+        solid = ctx.load("point_surface")
+    if solid is not None and solid.is_watertight:
+        e.input_volume, e.input_chi = float(abs(solid.volume)), solid_euler(np.asarray(solid.faces))
+    return e

@@ -225,7 +225,12 @@ class Sheet(Stage):
 
         def balls():  # measured only when coverage or the fit runs (not on a sheet left above the target)
             if not measured:
+                t0 = time.perf_counter()
+                # a long step on a surface whose axis collapses to a point (a sphere): every query there is
+                # equally near every face, so say what runs
+                ctx.log.info("coverage: measuring the data's medial balls behind its surface samples")
                 measured.append(input_surface_balls(ctx, field, mesh, points))
+                ctx.log.info("coverage: %d balls measured in %.1f s", len(measured[0].radii), time.perf_counter() - t0)
             return measured[0]
 
         fit_of = None

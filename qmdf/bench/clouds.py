@@ -1,0 +1,130 @@
+"""``python -m qmdf.bench clouds``: how raw clouds (no normals) are oriented, on every mesh of the data.
+
+From every mesh in ``../shared/data`` (organic, cad, defects) and the embedded teacup and cyclide, seeded clouds
+are drawn with the degradations the pipeline uses (``qmdf.geometry.degradations``): 20k clean points; 2,000 and
+1,000; 20k with 0.5% and 1% Gaussian noise (of the bounding-box diagonal); 20k with three missing balls; a
+density ramp. Each is oriented by every method of ``train.orientation`` and scored against the source's outward
+normals: the share within 90 degrees (orientation accuracy), the median angle, the share the cloud's own winding
+number contradicts, and the seconds. The whole pipeline on such clouds is ``bench models`` with
+``+sample.degradations...`` overrides; this suite isolates the step that decides inside from outside.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from qmdf.bench.models import default_data_dir
+
+#: name -> the degradations (as in ``sample.degradations``) applied to 20k samples of the source mesh
+CLOUDS = {
+    "clean_20k": {},
+    "sparse_2000": {"subsample": {"n": 2000}},
+    "sparse_1000": {"subsample": {"n": 1000}},
+    "noise_0.5%": {"noise": {"sigma": 0.005}},
+    "noise_1%": {"noise": {"sigma": 0.01}},
+    "holes_3": {"missing_region": {"count": 3}},
+    "ramp": {"nonuniform": {}},
+}
+CATEGORIES = ("organic", "cad", "defects")
+METHODS = ("wnnc", "propagation")
+
+
+def sources(data: Path) -> list[tuple[str, object]]:
+    """(name, loader) of every source mesh: the data's meshes where it is present, and two procedural shapes."""
+    from qmdf.geometry.shapes import get_shape
+
+    out = [(name, (lambda name=name: _procedural(get_shape(name)))) for name in ("teacup", "cyclide")]
+    for category in CATEGORIES:
+        for path in sorted((data / category).glob("*")) if (data / category).is_dir() else []:
+            out.append((path.stem, (lambda path=path: _from_file(path))))
+    return out
+
+
+def _procedural(shape):
+    mesh = shape.mesh(128)
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+
+
+def _from_file(path: Path):
+    from qmdf.geometry.io import load_geometry
+
+    geom = load_geometry(path)
+    return geom.points.points, geom.faces
+
+
+def make_cloud(vertices, faces, degradations: dict, seed: int = 0):
+    """The cloud and its true outward normals, in the unit box."""
+    from qmdf import schema
+    from qmdf.geometry.degradations import DEGRADATIONS
+    from qmdf.geometry.medial_radius import mesh_outward_normals
+    from qmdf.geometry.normalize import Normalization
+    from qmdf.geometry.pointset import PointSet
+    from qmdf.geometry.sampling import sample_surface
+
+    v = Normalization.fit(vertices).to_unit(vertices)
+    points = sample_surface(v, faces, 20_000, np.random.default_rng(seed))
+    normals, _ = mesh_outward_normals(points.points, points.normals, v, faces)
+    points = PointSet(points.points, normals)
+    for i, (name, params) in enumerate(degradations.items()):
+        entry = DEGRADATIONS.get(name)
+        points = entry.obj(points, schema.build(entry.config, params), np.random.default_rng([seed, i]))
+    return points.points, points.normals
+
+
+def score(points: np.ndarray, true: np.ndarray, method: str) -> dict:
+    from qmdf.geometry.normals import estimate_oriented_normals
+
+    t0 = time.perf_counter()
+    est, _, info = estimate_oriented_normals(points, method=method)
+    seconds = time.perf_counter() - t0
+    cos = np.clip((est * true).sum(1), -1, 1)
+    return {
+        "orientation": float(np.mean(cos > 0)),
+        "median_angle": float(np.degrees(np.median(np.arccos(cos)))),
+        "inconsistent": float(info.get("inconsistent_share", float("nan"))),
+        "seconds": round(seconds, 2),
+    }
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="python -m qmdf.bench clouds", description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=default_data_dir(), help="benchmark data (default ../shared/data)")
+    ap.add_argument("--only", default="", help="comma-separated source names")
+    ap.add_argument("--clouds", default=",".join(CLOUDS), help="comma-separated cloud kinds")
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated orientation methods")
+    ap.add_argument("--json", type=Path, help="write the rows as a JSON list")
+    args = ap.parse_args(argv)
+    only = {s for s in args.only.split(",") if s}
+    kinds = [k for k in args.clouds.split(",") if k]
+    methods = [m for m in args.methods.split(",") if m]
+    rows = []
+    print(f"{'source':<22}{'cloud':<13}{'points':>7}  " + "  ".join(f"{m:>30}" for m in methods), flush=True)
+    for name, load in sources(args.data):
+        if only and name not in only:
+            continue
+        vertices, faces = load()
+        for kind in kinds:
+            points, true = make_cloud(vertices, faces, CLOUDS[kind])
+            row = {"source": name, "cloud": kind, "points": int(len(points))}
+            cells = []
+            for method in methods:
+                row[method] = s = score(points, true, method)
+                cells.append(
+                    f"{100 * s['orientation']:6.2f}% {s['median_angle']:5.1f}deg {100 * s['inconsistent']:5.2f}% "
+                    f"{s['seconds']:5.1f}s"
+                )
+            rows.append(row)
+            print(f"{name:<22}{kind:<13}{len(points):>7}  " + "  ".join(f"{c:>30}" for c in cells), flush=True)
+    for method in methods:
+        for kind in kinds:
+            got = [r[method]["orientation"] for r in rows if r["cloud"] == kind]
+            if got:
+                print(f"{method:<12}{kind:<13} min {100 * min(got):6.2f}%  mean {100 * np.mean(got):6.2f}%  n={len(got)}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
