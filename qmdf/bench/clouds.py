@@ -124,7 +124,9 @@ def main(argv: list[str]) -> int:
         for kind in kinds:
             got = [r[method]["orientation"] for r in rows if r["cloud"] == kind]
             if got:
-                print(f"{method:<12}{kind:<13} min {100 * min(got):6.2f}%  mean {100 * np.mean(got):6.2f}%  n={len(got)}")
+                print(
+                    f"{method:<12}{kind:<13} min {100 * min(got):6.2f}%  mean {100 * np.mean(got):6.2f}%  n={len(got)}"
+                )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0
