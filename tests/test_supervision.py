@@ -334,7 +334,8 @@ def test_the_poisson_surface_follows_a_sparse_clean_cloud_between_its_points_but
     fine_info, coarse_info = {}, {}
     fine = poisson_surface(pts, nrm, info=fine_info)
     coarse = poisson_surface(pts, nrm, samples_per_node=1.5, info=coarse_info)
-    assert fine_info == {"samples_per_node": 0.25} and coarse_info == {"samples_per_node": 1.5}
+    assert fine_info == {"samples_per_node": 0.25, "domain_scale": 1.1, "pieces": 1}
+    assert coarse_info == {"samples_per_node": 1.5, "domain_scale": 1.1, "pieces": 1}
     assert agreement(fine) > 0.995 and agreement(fine) > agreement(coarse) + 7e-4
 
     noisy = pts + np.random.default_rng(1).normal(scale=0.01, size=pts.shape)
