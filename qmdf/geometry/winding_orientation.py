@@ -60,11 +60,9 @@ def even_subsample(points: np.ndarray, count: int) -> np.ndarray:
 
 def sampling_gap(points: np.ndarray, k: int = 8) -> float:
     """The median distance to the k-th neighbour."""
-    from scipy.spatial import cKDTree
+    from qmdf.geometry.normals import local_spacing
 
-    k = int(min(k, len(points) - 1))
-    d, _ = cKDTree(points).query(points, k=k + 1)
-    return float(np.median(d[:, -1]))
+    return float(np.median(local_spacing(points, k=k, low=0.0, high=np.inf)))
 
 
 def wnnc_dipoles(points: np.ndarray, settings: WnncSettings, gap: float) -> tuple[np.ndarray, dict]:
