@@ -128,16 +128,17 @@ class Evaluate(Stage):
             metrics["chi_membrane"] = metrics["chi"]
             metrics["chi"] = euler_tetrahedral(len(verts), tets)
             metrics["chi_rule"] = "V - E + F - C of the contracted tetrahedral covering"
-        if ref_f is not None and ctx.has("field") and ctx.cfg.field_samples:
+        field = ctx.load("field") if ctx.has("field") else None
+        if ref_f is not None and field is not None and ctx.cfg.field_samples:
             from qmdf.fields.quality import field_quality
 
-            metrics["field"] = field_quality(ctx.load("field"), ref_v, ref_f, ctx.cfg.field_samples, ctx.seed)
+            metrics["field"] = field_quality(field, ref_v, ref_f, ctx.cfg.field_samples, ctx.seed)
             ctx.log.info(
                 "field: sign accuracy %.4f, mean |grad sdf| inside %s",
                 metrics["field"]["sign_accuracy"],
                 metrics["field"]["grad_sdf_inside"],
             )
-        metrics["verdict"] = verdict(evidence(ctx, metrics, recon, ref_v, ref_f))
+        metrics["verdict"] = verdict(evidence(ctx, metrics, recon, field, ref_v, ref_f))
         for reason in metrics["verdict"]["reasons"]:
             ctx.log.warning("quality: suspect: %s", reason)
         ctx.save("metrics", metrics)
@@ -154,7 +155,7 @@ class Evaluate(Stage):
         )
 
 
-def evidence(ctx: StageContext, metrics: dict, recon, ref_v: np.ndarray, ref_f: np.ndarray | None):
+def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, ref_f: np.ndarray | None):
     """What the verdict checks (``qmdf.verdict.Evidence``), from the run's artifacts. The input's solid: the
     reference mesh where it is closed, else a cloud's closed Poisson surface."""
     import trimesh
@@ -168,9 +169,8 @@ def evidence(ctx: StageContext, metrics: dict, recon, ref_v: np.ndarray, ref_f: 
     sup = (ctx.load("training").get("supervision") or {}) if ctx.has("training") else {}
     e.orientation, e.proxy = sup.get("orientation"), sup.get("proxy")
     e.proxy_pieces = (sup.get("proxy_surface") or {}).get("pieces")
-    if ctx.has("field") and ctx.has("points"):
-        points = ctx.load("points").points
-        e.zero_set_distance = zero_set_distance(ctx.load("field").evaluate(points)["sdf"])
+    if field is not None and ctx.has("points"):
+        e.zero_set_distance = zero_set_distance(field.evaluate(ctx.load("points").points)["sdf"])
     solid = trimesh.Trimesh(ref_v, ref_f, process=False) if ref_f is not None else None
     if (solid is None or not solid.is_watertight) and ctx.has("point_surface"):
         solid = ctx.load("point_surface")

@@ -11,6 +11,7 @@ from typing import Any
 
 from qmdf import schema
 from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS, RAYS
+from qmdf.geometry.normals import ORIENTATIONS
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
@@ -53,7 +54,7 @@ class TrainConfig:
     )
     orientation: str = param(
         "wnnc",
-        choices=("wnnc", "propagation"),
+        choices=ORIENTATIONS,
         doc="raw points: how their estimated normals are oriented. wnnc: the winding number's normal "
         "consistency (Lin et al. 2024), global, right where a wall is as thin as the sampling gap (the "
         "1,500-point teacup: 99.9% right); propagation: along a spanning tree, then winding checks (56% there)",
