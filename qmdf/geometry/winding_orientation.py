@@ -117,9 +117,11 @@ def wnnc_normals(
 def same_side_planes(points: np.ndarray, normals: np.ndarray, k: int = 16) -> tuple[np.ndarray, float]:
     """Each oriented normal refitted as the least-variance axis of its k nearest neighbours that face the same way
     (normals within 60 degrees): across a wall as thin as the sampling gap a plain plane fit mixes both sides
-    and tilts (the 1,500-point teacup's normals 19 degrees off the true ones, median; 2.9 after this, and its
-    Poisson surface one piece instead of three). Kept where at least 3 neighbours agree and the new normal stays
-    within 60 degrees of the old. Returns the normals and the share refitted."""
+    and tilts (the 1,500-point teacup's normals 19 degrees off the true ones, median; 2.9 after this over 8
+    neighbours, and its Poisson surface one piece instead of three). 16 neighbours, as many as the plain fit, keep
+    a 0.5% noisy cloud's normals as sharp as it does (8 doubled their median error). Kept where at least 3
+    neighbours agree and the new normal stays within 60 degrees of the old. Returns the normals and the share
+    refitted."""
     from scipy.spatial import cKDTree
 
     k = int(min(k, len(points) - 1))
