@@ -1,12 +1,13 @@
 # Two commands do all the set-up on a fresh machine:
 #   make run    -> creates .venv, installs qmdf (CPU torch), runs the pipeline on the embedded teacup
-#   make test   -> the same set-up, then the test suite
+#   make test   -> the same set-up, then the fast test tier (tests marked slow left out)
+#   make test-all -> every test (what CI runs)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: setup run test lint plugins clean-runs
+.PHONY: setup run test test-all lint plugins clean-runs
 
 setup:
 	@bash scripts/setup.sh
@@ -15,6 +16,9 @@ run: setup
 	$(PY) -m qmdf $(ARGS)
 
 test: setup
+	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+
+test-all: setup
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 lint: setup

@@ -41,6 +41,7 @@ def task(cfg) -> dict:
     from qmdf.artifacts import write_json
     from qmdf.errors import QmdfError
     from qmdf.pipeline import Pipeline
+    from qmdf.report import report_finished_run
 
     hc = HydraConfig.get()
     run_dir = Path(hc.runtime.output_dir)
@@ -53,6 +54,7 @@ def task(cfg) -> dict:
     signal.signal(signal.SIGTERM, on_term)
     try:
         result = Pipeline(cfg, run_dir, base_dir=Path(hc.runtime.cwd)).run()
+        report_finished_run(run_dir, cfg)
     except KeyboardInterrupt:
         code = 128 + (received[-1] if received else signal.SIGINT)
         log.error(

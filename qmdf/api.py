@@ -78,6 +78,7 @@ def run(
     """Run the configured pipeline on ``source`` (a path, an (N, 3) array, a trimesh, or None for the
     default shape). Returns the RunResult (run directory, manifest, artifacts)."""
     from qmdf.pipeline import Pipeline
+    from qmdf.report import report_finished_run
 
     base = Path(base_dir or os.getcwd()).resolve()
     out = Path(run_dir) if run_dir is not None else base / "runs" / new_run_name()
@@ -97,7 +98,9 @@ def run(
         logging.getLogger().addHandler(handler)
         if logging.getLogger().level > logging.INFO:
             logging.getLogger("qmdf").setLevel(logging.INFO)
-        return Pipeline(cfg, out, base).run()
+        result = Pipeline(cfg, out, base).run()
+        report_finished_run(out, cfg)
+        return result
     except BaseException:
         if handler is not None:
             handler.close()

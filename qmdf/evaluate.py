@@ -17,6 +17,7 @@ import numpy as np
 
 from qmdf.errors import QmdfError
 from qmdf.geometry import metrics as M
+from qmdf.geometry.envelope_scores import reconstruction_distances
 from qmdf.geometry.ma_format import MedialMesh
 from qmdf.geometry.normalize import Normalization
 
@@ -43,7 +44,7 @@ def score_mat(
         raise QmdfError("the MAT has negative or non-finite radii or coordinates")
     t0 = time.perf_counter()
     union = EnvelopeUnion.from_mat(mat)
-    dist, recon, _, _ = M.reconstruction_distances(
+    dist, recon, _, _ = reconstruction_distances(
         union, ref_vertices, ref_faces, samples, np.random.default_rng(seed), resolution, recon_mesh=recon_mesh
     )
     # A single-layer MAT's boundary is its one-face edges; our closed double-covering membrane has none,

@@ -302,18 +302,7 @@ class Pipeline:
             manifest["quality"], manifest["quality_reasons"] = found.get("quality", "unchecked"), found.get("reasons")
         manifest["finished"] = dt.datetime.now().isoformat(timespec="microseconds")
         self._write_manifest(manifest)
-        if self.cfg.pipeline.get("report", True):
-            self._write_report()
         return result
-
-    def _write_report(self) -> None:
-        """report.html; a report that cannot be written is a warning, never a failed run."""
-        try:
-            from qmdf.report import write_report
-
-            log.info("report: %s", write_report(self.run_dir))
-        except Exception as exc:  # noqa: BLE001 - the run's results are complete without it
-            log.warning("report.html was not written: %s", exc)
 
     def _run_step(self, step: Step, produced: dict[str, ArtifactRecord]) -> dict:
         st = step.stage

@@ -8,10 +8,15 @@ again for any finished run; a sweep gets one page linking its jobs' reports (``s
 from __future__ import annotations
 
 import base64
+import logging
 import html
 from pathlib import Path
 
 import numpy as np
+
+from qmdf.paper import TABLE3
+
+log = logging.getLogger(__name__)
 
 #: faces per mesh and points per cloud drawn in the 3D view (the page stays a few MB)
 DISPLAY_FACES = 12_000
@@ -162,9 +167,7 @@ def _metrics_table(metrics: dict, stem: str) -> str:
         ("sign accuracy", field.get("sign_accuracy"), None),
         ("mean |grad sdf| inside", field.get("grad_sdf_inside"), None),
     ]
-    from qmdf.bench.models import PAPER  # the paper's Table 3, one copy
-
-    paper = PAPER.get(stem)
+    paper = TABLE3.get(stem)
     paper_of = {"CD": paper[0] * 1e-3, "HD": paper[1] * 1e-3, "chi": paper[2]} if paper else {}
     out = ["<table><tr><th>metric</th><th>this run</th><th>paper (Table 3)</th></tr>"]
     for name, value, _ in rows:
@@ -202,6 +205,17 @@ def _stage_table(manifest: dict) -> str:
 
 STYLE = """body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}table{border-collapse:collapse}
 td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}pre{background:#f6f6f6;padding:1em;overflow:auto}"""
+
+
+def report_finished_run(run_dir: Path, cfg) -> None:
+    """report.html of a finished run unless ``pipeline.report=false``; one that cannot be written is a warning,
+    never a failed run (its results are complete without it)."""
+    if not cfg.pipeline.get("report", True):
+        return
+    try:
+        log.info("report: %s", write_report(run_dir))
+    except Exception as exc:  # noqa: BLE001
+        log.warning("report.html was not written: %s", exc)
 
 
 def write_report(run_dir: Path | str) -> Path:

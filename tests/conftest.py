@@ -9,33 +9,25 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data"
 
-#: Overrides that keep every CLI run in the tests small and fast.
-FAST = [
-    "input.shape_resolution=32",
-    "sample.n_points=2000",
-    "train.steps=3",
-    "train.surface_batch=256",
-    "train.volume_batch=256",
-    "train.backbone=mlp",
-    "train.backbones.mlp.width=32",
-    "train.volume_samples=5000",
-    "train.poisson_depth=6",
-    "train.picture=false",
-    "cover.resolution=32",
-    "cover.eps=0.05",
-    "contract.iterations=5",
-    "export.reconstruction_resolution=24",
-    "export.picture=false",
-    "evaluate.samples=500",
-    "evaluate.resolution=24",
-    "evaluate.picture=false",
-    "pipeline.report=false",
-    "sheet.off_axis_wide=0",  # one sheet, not two (the torus chain of test_extraction builds both)
-]
+
+def _flat(node: dict, prefix: str = "") -> list[str]:
+    out = []
+    for key, value in node.items():
+        if isinstance(value, dict):
+            out += _flat(value, f"{prefix}{key}.")
+        else:
+            out.append(f"{prefix}{key}={str(value).lower() if isinstance(value, bool) else value}")
+    return out
+
+
+#: Overrides that keep every CLI run in the tests small and fast: ``conf/debug/fast.yaml`` (``+debug=fast``), the
+#: one place they are written, as key=value overrides so that they win over any experiment a test adds.
+FAST = _flat(yaml.safe_load((REPO / "conf" / "debug" / "fast.yaml").read_text()))
 
 
 def run_cli(args: list[str], cwd: Path, env: dict | None = None, module: str = "qmdf") -> subprocess.CompletedProcess:

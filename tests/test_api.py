@@ -56,6 +56,7 @@ def test_the_api_says_where_it_writes_when_not_told(tmp_path, caplog):
     assert f"qmdf writes this run to {res.run_dir}" in caplog.text
 
 
+@pytest.mark.slow
 def test_medial_axis_returns_the_mat_and_metrics(tmp_path):
     chain = [
         "input.shape=torus",

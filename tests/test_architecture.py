@@ -77,3 +77,61 @@ def test_the_import_graph_command_shows_no_upward_import(tmp_path):
     (tmp_path / "qmdf" / "geometry" / "bad.py").write_text("def f():\n    from qmdf.stages.sample import Sample\n")
     assert import_graph(tmp_path / "qmdf") == {"geometry": {"stages": 1}}
     assert imports_listing(tmp_path / "qmdf").splitlines()[-1].endswith("geometry -> stages (1)")
+
+
+def _resolved(imports: set[str]) -> set[str]:
+    """Each import as the module it reads (``qmdf.geometry.metrics.unique_edges`` -> ``qmdf.geometry.metrics``)."""
+    out = set()
+    for name in imports:
+        while name not in MODULES and "." in name:
+            name = name.rsplit(".", 1)[0]
+        if name in MODULES:
+            out.add(name)
+    return out
+
+
+def import_cycles(modules: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan), packages' ``__init__`` left out: importing
+    ``qmdf.x`` runs ``qmdf/__init__`` first whoever asks, so a package that re-exports its members is no circle."""
+    graph = {m: {i for i in _resolved(imps) if i != m and i in modules} for m, imps in modules.items()}
+    packages = {m for m in graph if (PACKAGE.parent / m.replace(".", "/") / "__init__.py").exists()}
+    graph = {m: deps - packages for m, deps in graph.items() if m not in packages}
+    index, low, stack, on_stack, groups = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return groups
+
+
+def test_no_import_circles():
+    assert import_cycles(MODULES) == []
+    # a circle through a function-local import is found
+    assert import_cycles({"qmdf.stage": {"qmdf.pipeline"}, "qmdf.pipeline": {"qmdf.stage.Stage"}}) == [
+        ["qmdf.pipeline", "qmdf.stage"]
+    ]
+
+
+def test_the_report_reads_the_papers_table_without_the_benchmarks():
+    assert not any(_within(i, ("qmdf.bench",)) for i in MODULES["qmdf.report"])

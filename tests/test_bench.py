@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import pytest
+
 import json
 from pathlib import Path
 
 from mats import install_torus_mat_plugin
 
 
+@pytest.mark.slow
 def test_bench_models_on_one_procedural_model(cli):
     env = install_torus_mat_plugin(cli.cwd / "site", Path(__file__).parent)
     proc = cli(
@@ -36,6 +39,7 @@ def test_bench_models_on_one_procedural_model(cli):
     assert "torus" in proc.stdout and "CD / HD: exact point-to-surface distances" in proc.stdout
 
 
+@pytest.mark.slow
 def test_bench_extraction_on_the_torus(cli):
     proc = cli(
         "extraction",
@@ -64,6 +68,7 @@ def test_bench_extraction_on_the_torus(cli):
     assert row["contract_s"] > 0  # computed, not served from a cache
 
 
+@pytest.mark.slow
 def test_field_scores_of_the_exact_field_are_zero():
     """The field bench's scorer on the exact ellipsoid field: descending -grad q lands on the medial disc."""
     import numpy as np
@@ -80,6 +85,7 @@ def test_field_scores_of_the_exact_field_are_zero():
     assert d.mean() < 0.05 * f.axis_distance(x).mean()
 
 
+@pytest.mark.slow
 def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compose_cfg):
     """bench features --recontract: with no override it reproduces the run's own enhanced MAT (the contraction
     is deterministic to 1e-6, then the same coverage); overrides change it; a key contract does not know fails
@@ -140,6 +146,7 @@ def test_recontract_replays_the_last_contraction_and_takes_overrides(cli, compos
     assert 0 <= row["sharp_within_0.01_after"] <= 1 and row["cd_after"] > 0
 
 
+@pytest.mark.slow
 def test_bench_speed_times_every_stage_beside_its_floor(cli):
     proc = cli(
         "speed", "--only", "teacup", "--json", "speed.json", "--out", "runs/speed", "+debug=fast", module="qmdf.bench"
@@ -155,6 +162,7 @@ def test_bench_speed_times_every_stage_beside_its_floor(cli):
     assert "one marching-cubes pass over 32^3" in proc.stdout and "ratio" in proc.stdout
 
 
+@pytest.mark.slow
 def test_bench_faults_counts_what_survives(cli):
     """One SIGINT trial (the signals in turn over more trials), a few fuzzed files, a 2-job shared-cache multirun."""
     proc = cli(

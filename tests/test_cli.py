@@ -87,6 +87,7 @@ def test_bad_config_lists_every_problem_and_exits_nonzero(cli):
         assert key in proc.stderr
 
 
+@pytest.mark.slow
 def test_multirun_over_a_sample_parameter(cli):
     args = ["-m", "sample.n_points=500,800", "input.shape_resolution=32", STAGES_ONLY_SAMPLE]
     proc = cli(*args)
@@ -105,6 +106,7 @@ def test_multirun_over_a_sample_parameter(cli):
     assert by_n[500]["key"] in {j["stages"][0]["key"] for j in jobs}
 
 
+@pytest.mark.slow
 def test_joblib_launcher_runs_identical_jobs_once(cli):
     # two jobs with the same key start together: one computes, the other waits on the lock and reuses it
     proc = cli("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=5,5", *FAST, STAGES_ONLY_SAMPLE)
@@ -160,6 +162,7 @@ def _external_plugin(site):
     return {"PYTHONPATH": str(site)}
 
 
+@pytest.mark.slow
 def test_external_stage_plugin_runs_inside_the_pipeline(cli):
     env = _external_plugin(cli.cwd / "site")
     listing = cli(env=env, module="qmdf.plugins")

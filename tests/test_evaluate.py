@@ -78,6 +78,7 @@ def test_evaluate_cli_bad_input(cli, tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and "header says 3 0 0" in proc.stderr
 
 
+@pytest.mark.slow
 def test_evaluate_stage_and_multirun_table(cli):
     env = install_torus_mat_plugin(cli.cwd / "site", TESTS)
     args = [

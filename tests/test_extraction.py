@@ -88,6 +88,7 @@ def test_analytic_field_answers_in_the_unit_box_of_its_input():
     assert np.allclose(out["sdf_grad"], exact.evaluate(x, grad=True)["sdf_grad"], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
     res = Pipeline(compose_cfg(*CHAIN, "sheet.off_axis_wide=3"), tmp_path / "run", tmp_path).run()
     stats = res.load("covering_stats")
@@ -296,6 +297,7 @@ def test_contraction_stays_inside_the_shape(weight):
         assert r.max() < 0.29
 
 
+@pytest.mark.slow
 def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(compose_cfg, tmp_path, caplog):
     """The torus's circle cannot go below three vertices: asked for two with no slack, the sheet is judged not
     compact, and export writes the membrane (faces, two layers) as the MAT with a warning, the sheet kept."""
@@ -310,6 +312,7 @@ def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(comp
     assert ".partial" not in named and Path(named).is_file()
 
 
+@pytest.mark.slow
 def test_a_sheet_that_fits_far_worse_than_the_membrane_is_not_the_mat(compose_cfg, tmp_path, caplog):
     """Three vertices of the torus's circle, compact as asked, are a triangle of cones whose envelope misses most
     of the tube: export writes the membrane as the MAT, with a warning; with the default budget the sheet (a

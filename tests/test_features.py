@@ -3,6 +3,8 @@ exact field, and retraining that pins the field to them."""
 
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 
 from qmdf.geometry.shapes import BOX_HALF
@@ -29,6 +31,7 @@ def test_mesh_features_lie_on_the_box_edges(compose_cfg, tmp_path):
     assert res.load("features")["source"] == "mesh"
 
 
+@pytest.mark.slow
 def test_field_procedure_reaches_the_box_edges(compose_cfg, tmp_path):
     """From the exact box field and its MAT: membrane boundary -> march along g1 + g2 -> QEM onto the edge."""
     cfg = compose_cfg(
@@ -76,6 +79,7 @@ def test_point_cloud_features_cover_every_box_edge_with_face_normals(compose_cfg
     assert np.mean(np.abs(m - np.sqrt(0.5)) < 0.02) > 0.95
 
 
+@pytest.mark.slow
 def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):
     # the paper's route: its field has no mf targets, so the sharp terms alone move mf at the features (the mesh
     # route's mf targets near an edge also go to 0, but over more steps than this smoke test runs)
@@ -105,6 +109,7 @@ def box_edge_samples(spacing: float) -> np.ndarray:
     return sample_segments(c[[i for i, _ in edges]], c[[j for _, j in edges]], spacing)
 
 
+@pytest.mark.slow
 def test_covering_and_pulled_membrane_reach_the_box_edges():
     """Exact box: the covering's tips end on the edges (not a voxel short), and the feature pull keeps the
     contracted membrane there, where the paper's energy lets the tips slide back."""

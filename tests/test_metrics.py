@@ -8,6 +8,7 @@ import trimesh
 
 from qmdf.geometry import metrics as M
 from qmdf.geometry.envelope import EnvelopeUnion
+from qmdf.geometry.envelope_scores import reconstruction_distances
 from qmdf.geometry.shapes import get_shape, torus_sdf
 
 
@@ -34,7 +35,7 @@ def torus_mat(n=400, R=0.35, r=0.15):
 def test_reconstruction_of_the_torus_mat_matches_the_torus():
     union = EnvelopeUnion(*torus_mat())
     gt = get_shape("torus").mesh(256)
-    out, mesh, (R, r_to_g), (G, g_to_r) = M.reconstruction_distances(
+    out, mesh, (R, r_to_g), (G, g_to_r) = reconstruction_distances(
         union, gt.vertices, gt.faces, 20000, np.random.default_rng(0), resolution=96
     )
     assert mesh.is_watertight and (2 - mesh.euler_number) // 2 == 1
@@ -47,7 +48,7 @@ def test_a_shifted_reconstruction_measures_its_shift():
     c, r, e, f = torus_mat()
     union = EnvelopeUnion(c, r - 0.01, e, f)  # a thinner tube: every surface point moves in by 0.01
     gt = get_shape("torus").mesh(256)
-    out, *_ = M.reconstruction_distances(union, gt.vertices, gt.faces, 10000, np.random.default_rng(0), resolution=96)
+    out, *_ = reconstruction_distances(union, gt.vertices, gt.faces, 10000, np.random.default_rng(0), resolution=96)
     assert out["chamfer"] == pytest.approx(0.01, abs=3e-4)
     assert out["hausdorff"] == pytest.approx(0.01, abs=3e-4)
 

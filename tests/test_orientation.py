@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from qmdf.geometry.normals import estimate_oriented_normals
+from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.shapes import get_shape
 from qmdf.geometry.winding_orientation import WnncSettings, even_subsample, sampling_gap, wnnc_normals
 

@@ -177,6 +177,7 @@ def test_a_stage_that_skips_an_output_fails(compose_cfg, tmp_path):
         run(compose_cfg, tmp_path, "pipeline.stages=[sample,lazy]")
 
 
+@pytest.mark.slow
 def test_unavailable_builtin_stages_are_reported_not_pretended(compose_cfg, tmp_path):
     res = run(compose_cfg, tmp_path)  # the default pipeline names stages later issues add
     m = res.manifest

@@ -3,6 +3,8 @@ clouds)."""
 
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
@@ -11,6 +13,7 @@ from qmdf.geometry.registration import register_mesh_to_points
 from qmdf.geometry.shapes import get_shape
 
 
+@pytest.mark.slow
 def test_a_mesh_lands_on_its_cloud_given_in_another_frame():
     cup = get_shape("teacup").mesh(48)  # no symmetry that would make the answer ambiguous: the handle
     v, f = np.asarray(cup.vertices), np.asarray(cup.faces)

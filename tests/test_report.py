@@ -24,6 +24,7 @@ def report_run(tmp_path_factory):
     return res.run_dir
 
 
+@pytest.mark.slow
 def test_the_run_writes_a_self_contained_report(report_run):
     page = (report_run / "report.html").read_text()
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")

@@ -58,7 +58,7 @@ def test_cyclide_lines_of_curvature_are_circles(u):
     assert np.abs(np.linalg.norm(xy - [a, b], axis=1) - radius).max() < 1e-9
 
 
-@pytest.mark.parametrize("name", ["torus", "box", "teacup"])
+@pytest.mark.parametrize("name", ["torus", "box", pytest.param("teacup", marks=pytest.mark.slow)])
 def test_sdf_is_zero_on_the_surface_and_negative_inside(name):
     shape = get_shape(name)
     mesh = shape.mesh(48 if name == "teacup" else 96)  # ray tests on a dense teacup are slow

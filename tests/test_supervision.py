@@ -17,7 +17,8 @@ from qmdf.geometry.inside import (
     points_winding_number,
 )
 from qmdf.geometry.medial_radius import inward_medial_radii
-from qmdf.geometry.normals import estimate_oriented_normals, orient_by_winding
+from qmdf.geometry.normals import orient_by_winding
+from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.shapes import TORUS_R, TORUS_r, get_shape, torus_sdf
 
 
@@ -66,6 +67,7 @@ def test_winding_number_survives_holes_and_flipped_faces(sphere):
     assert np.mean((w[clear] > 0.5) == (exact[clear] < 0)) > 0.97
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape,n", [("torus", 5000), ("teacup", 20000)])
 def test_raw_normals_are_oriented_outward(shape, n):
     """From points alone (no normals): plane fits, tree, winding number; on the teacup's 0.046-thick walls the
@@ -109,6 +111,7 @@ def test_medial_radii_of_sphere_slab_and_torus(sphere):
     assert abs(np.median(r) - TORUS_r) < 4e-3 and np.percentile(np.abs(r - TORUS_r), 95) < 0.015
 
 
+@pytest.mark.slow
 def test_routes_and_their_targets_on_the_torus():
     assert choose_route("auto", True, True)[0] == "mesh"
     assert choose_route("auto", False, True)[0] == "oriented_points"
@@ -143,6 +146,7 @@ def test_routes_and_their_targets_on_the_torus():
     assert paper.normals is None and not np.isfinite(paper.sdf).any() and not np.isfinite(paper.mf).any()
 
 
+@pytest.mark.slow
 def test_the_samples_by_the_axis_lie_on_both_sides_of_it_alike():
     """The torus's outer side has more surface, so more rays: from each ray's side only, the samples by the axis
     lie about 1.6x as often outside the axis circle as inside it (its outer half has 1.75x the area), and the
@@ -229,6 +233,7 @@ def test_mat_radii_from_the_data_reach_the_surface():
         mat_radii(core, "data")
 
 
+@pytest.mark.slow
 def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surface():
     """1,500 points of the torus: the screened Poisson surface of the oriented points has the torus's genus and
     faces outward (even from inward normals), and gives every volume sample a target with the right sign and about
@@ -263,6 +268,7 @@ def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surfa
     assert abs(np.median(proxy.radii) - TORUS_r) < 0.015
 
 
+@pytest.mark.slow
 def test_the_zero_level_can_follow_the_poisson_surface_instead_of_noisy_points():
     torus = get_shape("torus").mesh(128)
     pts, nrm = _samples(torus, 3000)

@@ -81,6 +81,7 @@ def test_without_medial_field_trains_the_sdf_only(compose_cfg, tmp_path):
     assert "loss/surface" in losses and not any(k.startswith("loss/mf_") for k in losses)
 
 
+@pytest.mark.slow
 def test_resume_trains_every_step_and_matches_an_uninterrupted_run(compose_cfg, tmp_path, caplog):
     """Interrupted at step 30 of 80 with a checkpoint every 20: the rerun resumes at 20, trains to step 80 (a bug
     once stopped it near 50 while training.json said 80, and cached the short field) and ends with the weights of
@@ -178,6 +179,7 @@ def test_grid_backbone_trains_through_the_pipeline(compose_cfg, tmp_path):
     assert hist[-1]["loss/surface"] < 0.3 * hist[0]["loss/surface"]
 
 
+@pytest.mark.slow
 def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path):
     """A plate 0.03 thick: with its mesh's outward normals (train.losses.normal) the learned inside is the plate,
     thin; from the points alone with the paper's losses it need not be (ABC 00000329 came out ten times thicker)."""
@@ -212,6 +214,7 @@ def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path):
     assert np.mean(above > 0.02) > 0.9
 
 
+@pytest.mark.slow
 def test_same_seed_same_field(compose_cfg, tmp_path):
     """The initial weights are seeded too: two trainings with one seed give the same field, another seed another."""
     fields = {}
@@ -222,6 +225,7 @@ def test_same_seed_same_field(compose_cfg, tmp_path):
     assert diff["b"] == 0.0 and diff["c"] > 1e-3, diff
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(2, 130), (15, 143)])
 def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_field(
     compose_cfg, tmp_path, signum, code
@@ -371,6 +375,7 @@ def test_the_medial_field_of_the_volume_rows_only_is_the_same_function_and_gradi
     assert all(torch.allclose(a, b, rtol=0, atol=1e-12) for a, b in zip(*grads))
 
 
+@pytest.mark.slow
 def test_a_clouds_poisson_surface_is_handed_on_as_the_data_the_radii_are_measured_to(compose_cfg, tmp_path):
     from qmdf.geometry.inside import mesh_distance
     from qmdf.geometry.sampling import sample_surface

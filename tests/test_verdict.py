@@ -54,6 +54,7 @@ def test_the_absurd_chi_grows_with_the_mat():
     assert verdict(Evidence(chi=-60, vertices=8000))["quality"] == "ok"
 
 
+@pytest.mark.slow
 def test_a_run_made_to_fail_says_so_and_fails_under_strict(cli):
     """Three training steps: the field has not learned the teacup. The run completes, writes everything, and
     calls itself suspect; with pipeline.strict=true it also exits with code 3."""

@@ -77,7 +77,7 @@ def make_cloud(vertices, faces, degradations: dict, seed: int = 0):
 
 
 def score(points: np.ndarray, true: np.ndarray, method: str) -> dict:
-    from qmdf.geometry.normals import estimate_oriented_normals
+    from qmdf.geometry.orientation import estimate_oriented_normals
 
     t0 = time.perf_counter()
     est, _, info = estimate_oriented_normals(points, method=method)

@@ -19,15 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from qmdf.bench.child import run_child
+from qmdf.paper import TABLE3
 from qmdf.rundir import conf_dir
 
-#: The paper's Table 3 (CD and HD x 1e-3, unit box; chi of the medial structure).
-PAPER = {
-    "bunny": (1.86, 12.56, 1),
-    "kitten": (1.58, 19.96, 0),
-    "block": (0.95, 21.41, -2),
-    "sharp_sphere": (1.67, 19.69, 1),
-}
 PROCEDURAL = ("teacup", "torus", "box", "ellipsoid", "dodecahedron", "cyclide")
 #: Point clouds sampled from a mesh of the data, in the same coordinates (checked: block_1000's points lie within
 #: 2e-6 of block.obj): scored against that mesh, which also gives their fields' sign accuracy.
@@ -152,7 +146,7 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
     else:
         row["status"] = "failed"
         row["note"] = (stderr.strip().splitlines() or ["no output"])[-1][:120]
-    paper = PAPER.get(model.name)
+    paper = TABLE3.get(model.name)
     if paper:
         row.update(paper_cd=paper[0] * 1e-3, paper_hd=paper[1] * 1e-3, paper_chi=paper[2])
     return row

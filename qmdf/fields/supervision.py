@@ -39,7 +39,8 @@ from qmdf.geometry.inside import (
     points_winding_number,
 )
 from qmdf.geometry.medial_radius import inward_medial_radii, mesh_outward_normals, mesh_ray_normals
-from qmdf.geometry.normals import estimate_oriented_normals, local_spacing, orient_by_winding, pca_normals
+from qmdf.geometry.normals import local_spacing, orient_by_winding, pca_normals
+from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.metrics import solid_euler
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface

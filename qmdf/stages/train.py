@@ -11,7 +11,7 @@ from typing import Any
 
 from qmdf import schema
 from qmdf.artifacts import FIELD, JSON, MESH, NORMALIZATION, POINTS, RAYS
-from qmdf.geometry.normals import ORIENTATIONS
+from qmdf.geometry.orientation import ORIENTATIONS
 from qmdf.schema import param
 from qmdf.stage import Stage, StageContext, register_stage
 
