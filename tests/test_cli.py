@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import FAST, manifests
+from qmdf.geometry.ma_format import read_ma
 
 STAGES_ONLY_SAMPLE = "pipeline.stages=[sample]"
 
@@ -27,6 +29,26 @@ def test_default_run_on_the_embedded_shape(cli):
     assert (run_dir / ".hydra" / "config.yaml").exists()
     if m["unavailable_stages"]:
         assert "not available in this version: " + ", ".join(m["unavailable_stages"]) in proc.stdout
+
+
+def test_a_raw_sphere_cloud_runs_in_seconds_and_its_mat_is_one_ball(cli):
+    """The raw-cloud route end to end under +debug=fast: WNNC normals, a Poisson surface, train's medial rays on it
+    reused by the sheet, distances near its vertices (at a sphere's centre every face is equally near: minutes in
+    the AABB tree before), and the MAT a point whose one fitted ball is the sphere."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(3000, 3))
+    np.savetxt(cli.cwd / "sphere.xyz", p / np.linalg.norm(p, axis=1, keepdims=True))
+    proc = cli(*FAST, "input.path=sphere.xyz")
+    assert proc.returncode == 0, proc.stderr
+    (m,) = manifests(cli.cwd / "runs")
+    run_dir = Path(m["_path"]).parent
+    sup = json.loads((run_dir / "01_train" / "training.json").read_text())["supervision"]
+    assert sup["route"] == "raw_points" and sup["orientation"]["method"] == "wnnc" and sup["proxy"] == "poisson"
+    assert sup["orientation"]["inconsistent_share"] < 0.01
+    mat = read_ma(run_dir / "05_export" / "mat.ma")
+    assert len(mat.vertices) == 1 and len(mat.faces) == 0
+    assert np.linalg.norm(mat.vertices[0]) < 0.01 and abs(mat.radii[0] - 0.5) < 0.01  # the unit box: radius 0.5
+    assert json.loads((run_dir / "04_sheet" / "sheet_stats.json").read_text())["fits_data"]
 
 
 def test_experiment_overlay(cli):

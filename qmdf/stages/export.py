@@ -81,8 +81,9 @@ class Export(Stage):
     # kept only where it improves the envelope's fit; 6: surface balls centred inside the mesh;
     # 7: a vertex outside goes to the surface with radius 0; 8: a sheet that fits worse than the membrane is not
     # the MAT; 9: the centring's bisection starts at the vertex's own depth and stops at tol / 8
-    # 10: a cloud measured against its Poisson surface (train.point_surface_as_data)
-    version = "10"
+    # 10: a cloud measured against its Poisson surface (train.point_surface_as_data); 11: a sheet that fits the data
+    # within the sheet's tolerance is not compared with the membrane
+    version = "11"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -93,13 +94,14 @@ class Export(Stage):
         field = ctx.load("field")
         membrane = membrane_to_mat(ctx.load("membrane"), field, ctx.cfg.radius, mesh, points, centre=ctx.cfg.centre)
         ctx.save("membrane_mat", membrane)
-        use_sheet = ctx.has("sheet") and (
-            ctx.load("sheet_stats").get("compact", True) if ctx.has("sheet_stats") else True
-        )
+        sheet_stats = ctx.load("sheet_stats") if ctx.has("sheet_stats") else {}
+        use_sheet = ctx.has("sheet") and sheet_stats.get("compact", True)
         mat = ctx.load("sheet") if use_sheet else membrane
         wanted = ctx.cfg.radius == "data" and (use_sheet or ctx.cfg.coverage_vertices)
         balls = input_surface_balls(ctx, field, mesh, points) if wanted else None
-        if use_sheet and balls is not None:
+        # a sheet whose envelope the sheet stage found within its tolerance of the data needs no comparison (the
+        # membrane's own fit is the costly one: a sphere's, thousands of balls all reaching every sample, 20 s)
+        if use_sheet and balls is not None and not sheet_stats.get("fits_data", False):
             use_sheet = self._sheet_fits(ctx, mat, membrane, balls)
             mat = mat if use_sheet else membrane
         if not use_sheet and balls is not None and ctx.cfg.coverage_vertices:

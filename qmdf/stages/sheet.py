@@ -200,8 +200,9 @@ class Sheet(Stage):
     # 13: the solid grown with the input's topology where no level of q has it; 14: tip_reach 0.003
     # 15: a cloud measured against its Poisson surface (train.point_surface_as_data); 16: a sheet thinned to a
     # point or to balls of no radius is not the MAT; 17: a second sheet at off_axis_wide, the better fit kept;
-    # 18: the spheres fitted to the data's surface samples (medial.envelope_fit)
-    version = "18"
+    # 18: the spheres fitted to the data's surface samples (medial.envelope_fit); 19: a point whose one ball fits the
+    # data is the MAT (a sphere's); a Poisson surface's balls from train's rays
+    version = "19"
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.medial.coverage import envelope_fit, refine_coverage
@@ -402,8 +403,10 @@ class Sheet(Stage):
                 + ("kept" if fitted["kept"] else "not kept"),
             )
         v = len(mat.vertices)
-        if not (len(mat.faces) or len(mat.edges)) or not mat.radii.max(initial=0.0) > 0:
-            # an undertrained field (no inside) thins to a point: no sheet, whatever its chi
+        # an undertrained field (no inside) thins to a point: no sheet, whatever its chi. But a sphere's MAT is one
+        # ball: a point is the MAT where its fitted ball lies within the coverage tolerance of the data
+        stats["fits_data"] = bool(stats.get("cd", float("inf")) <= cfg.coverage_tolerance)  # export takes it as is
+        if (not (len(mat.faces) or len(mat.edges)) and not stats["fits_data"]) or not mat.radii.max(initial=0.0) > 0:
             stats["compact"] = False
             ctx.log.warning(
                 "the single sheet collapsed to %d vertices, %d edges, %d faces, largest radius %.3g: the field's "

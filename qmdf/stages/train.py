@@ -191,8 +191,9 @@ class Train(Stage):
     # saved for the later stages (point_surface_as_data); 10: the ray samples by the axis straddle it (axis_band),
     # Adam fused; 11: the encoding's compiled backward, mf of the volume samples only (the same function, 2x faster
     # on the CPU; the last bits differ); 12: raw points oriented by WNNC (orientation); 13: their normals refitted on
-    # their own side of a wall, a Poisson surface clipped by the solver's domain solved again in a wider one
-    version = "13"
+    # their own side of a wall, a Poisson surface clipped by the solver's domain solved again in a wider one; 14: the
+    # Poisson surface's medial rays saved too (the sheet's balls measured once)
+    version = "14"
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
@@ -211,18 +212,22 @@ class Train(Stage):
         cfg: TrainConfig = ctx.cfg
         points = ctx.load("points").points
         sup = supervise(ctx, cfg)
-        if sup.route == "mesh" and sup.stats.get("mesh_rays") == "smooth":
-            # the medial ball behind each sample, as coverage measures them: once (teacup: 10 s in sheet -> 0.5 s)
+        # the medial ball behind each ray's origin, measured once for training, coverage and the fit alike (the
+        # teacup's mesh: 10 s in sheet -> 0.5 s; a 3,000-point sphere's Poisson surface: every query near its
+        # centre equally near every face, minutes in sheet)
+        proxy_is_data = sup.proxy_mesh is not None and cfg.point_surface_as_data
+        if (sup.route == "mesh" and sup.stats.get("mesh_rays") == "smooth") or proxy_is_data:
+            origins = points if sup.ray_origins is None else sup.ray_origins
             ctx.save(
                 "medial_rays",
                 {
-                    "origins": points,
+                    "origins": origins,
                     "directions": sup.ray_normals,
                     "radii": sup.radii,
                     "tol": sup.stats["ray_tolerance"],
                 },
             )
-        if sup.proxy_mesh is not None and cfg.point_surface_as_data:
+        if proxy_is_data:
             import trimesh
 
             ctx.save("point_surface", trimesh.Trimesh(*sup.proxy_mesh, process=False))
@@ -294,6 +299,12 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
     if route == "mesh":
         surface = ctx.load("surface")
         mesh = (np.asarray(surface.vertices, np.float64), np.asarray(surface.faces, np.int64))
+    ctx.log.info(
+        "supervision: the %s route's targets for %d volume samples%s",
+        route,
+        cfg.volume_samples,
+        " (normals, a Poisson surface, its medial rays)" if route in ("oriented_points", "raw_points") else "",
+    )
     t0 = time.perf_counter()
     sup = build_supervision(
         route,
