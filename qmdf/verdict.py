@@ -30,6 +30,10 @@ class VerdictLimits:
     # |chi| of a MAT of V vertices beyond max(20, V / 100) is a foam, not a shape's axis (genus 10 at most here).
     chi_floor: int = 20
     chi_per_vertex: float = 0.01
+    # The MAT's parts that contradict the shape (``qmdf.geometry.mat_structure``): vertices outside it, balls out
+    # of it or of no radius inside it, edges and faces across a hole. A few at a sharp corner are the sheet's
+    # rounding; a twentieth of the MAT is a wrong axis.
+    structural_share: float = 0.05
 
 
 @dataclass
@@ -46,6 +50,9 @@ class Evidence:
     chi: int | None = None  # the MAT's
     input_chi: int | None = None  # the input solid's, where known
     vertices: int | None = None  # the MAT's
+    edges: int | None = None  # the MAT's, its faces' too
+    faces: int | None = None  # the MAT's
+    structure: dict | None = None  # the MAT's structural defects (mat_structure.structural_defects)
     notes: list[str] = field(default_factory=list)
 
 
@@ -86,6 +93,19 @@ def verdict(e: Evidence, limits: VerdictLimits = VerdictLimits()) -> dict:
             reasons.append(f"the MAT's chi {e.chi} is absurd for {e.vertices} vertices (|chi| over {bound})")
         elif e.input_chi is not None and e.chi != e.input_chi:
             reasons.append(f"the MAT's chi {e.chi} differs from the input solid's {e.input_chi}")
+    st = e.structure or {}
+    if st:
+        shares = {
+            "vertices": st["defective_vertices"] / max(e.vertices or 0, 1),
+            "edges": st["edges_outside"] / max(e.edges or 0, 1),
+            "faces": st["faces_outside"] / max(e.faces or 0, 1),
+        }
+        worst = max(shares, key=shares.get)
+        if shares[worst] > limits.structural_share:
+            reasons.append(
+                f"{100 * shares[worst]:.0f}% of the MAT's {worst} contradict the shape (outside it, balls out of it "
+                f"or of no radius inside it; over {100 * limits.structural_share:.0f}%): {st}"
+            )
     return {"quality": "suspect" if reasons else "ok", "reasons": reasons}
 
 

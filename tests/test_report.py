@@ -41,6 +41,7 @@ def test_the_run_writes_a_self_contained_report(report_run):
         assert f'"name":"{layer}"' in page, layer
     assert page.count("data:image/png;base64,") >= 3  # slices, losses, mat
     assert "<td>CD</td>" in page and "<h2>Stages</h2>" in page and "<td>contract</td>" in page
+    assert "<td>structure: vertices outside</td>" in page and "<td>structure: edges outside</td>" in page
     assert "<h2>Config</h2>" in page and "contract:" in page
     assert len(page) < 12e6
 

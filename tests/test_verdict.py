@@ -21,7 +21,11 @@ GOOD = dict(
     chi=0,
     input_chi=0,
     vertices=3000,
+    edges=8000,
+    faces=5000,
+    structure={"defective_vertices": 12, "edges_outside": 3, "faces_outside": 0},
 )
+STRUCTURE = {"defective_vertices": 12, "edges_outside": 3, "faces_outside": 0}
 
 
 def test_a_good_result_is_ok_and_unknown_evidence_is_not_held_against_it():
@@ -41,6 +45,8 @@ def test_a_good_result_is_ok_and_unknown_evidence_is_not_held_against_it():
         ({"volume": 0.05}, "0.51x the volume"),
         ({"chi": -1163}, "chi -1163 is absurd for 3000 vertices"),
         ({"chi": -2}, "chi -2 differs from the input solid's 0"),
+        ({"structure": {**STRUCTURE, "defective_vertices": 300}}, "10% of the MAT's vertices contradict the shape"),
+        ({"structure": {**STRUCTURE, "faces_outside": 400}}, "8% of the MAT's faces contradict the shape"),
     ],
 )
 def test_each_contradiction_is_a_reason(change, words):

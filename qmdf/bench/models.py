@@ -128,6 +128,9 @@ def run_model(model: Model, out: Path, overrides: list[str], timeout: int) -> di
             quality = mm.get("field") or {}
             row.update(sign=quality.get("sign_accuracy"), grad_inside=quality.get("grad_sdf_inside"))
             row.update(vertices=mm["vertices"], faces=mm["faces"])
+            st = mm.get("structure") or {}  # vertices with a defect, edges and faces outside (mat_structure)
+            if st:
+                row["defects"] = st["defective_vertices"] + st["edges_outside"] + st["faces_outside"]
         arts = {name: run_dir / a["path"] for st in m.get("stages", []) for name, a in st["artifacts"].items()}
         if "sheet_stats" in arts:
             row["seams"] = json.loads(arts["sheet_stats"].read_text())["after"]["seam_edges"]
@@ -192,7 +195,7 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 def print_table(rows: list[dict]) -> None:
     head = (
         f"{'model':<28}{'category':<26}{'route':<16}{'sign':>7}{'|grad|':>7}{'CD e-3':>8}{'HD e-3':>8}{'chi':>5}"
-        f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}"
+        f"{'exp':>5}{'C_avg':>7}{'V':>6}{'F':>6}{'seams':>6}{'defects':>8}{'membr CD/HD':>13}{'paper CD/HD/chi':>18}"
         f"{'wall s':>8}{'peak MB':>9}"
         "  stages (s) / note"
     )
@@ -209,7 +212,7 @@ def print_table(rows: list[dict]) -> None:
             f"{r['model']:<28}{r['category']:<26}{r.get('route') or '-':<16}{_fmt(r.get('sign'), 1, 4):>7}"
             f"{_fmt(r.get('grad_inside'), 1, 3):>7}{_fmt(r.get('cd'), 1e3):>8}{_fmt(r.get('hd'), 1e3):>8}"
             f"{_fmt(r.get('chi')):>5}{_fmt(r.get('expected_chi')):>5}{_fmt(r.get('smoothness'), 1, 3):>7}"
-            f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}"
+            f"{_fmt(r.get('vertices')):>6}{_fmt(r.get('faces')):>6}{_fmt(r.get('seams')):>6}{_fmt(r.get('defects')):>8}"
             f"{_fmt(r.get('membrane_cd'), 1e3) + '/' + _fmt(r.get('membrane_hd'), 1e3):>13}{paper:>18}"
             f"{r['wall_s']:>8.1f}{_fmt(r.get('peak_mb'), 1, 0):>9}  "
             f"{stages}{' | ' + r['note'] if r.get('note') else ''}"

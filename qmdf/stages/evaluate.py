@@ -72,7 +72,9 @@ class Evaluate(Stage):
     }
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
-    version = "3"  # 2: the field's sign accuracy and metric inside; 3: the run's verdict (qmdf.verdict)
+    # 2: the field's sign accuracy and metric inside; 3: the run's verdict (qmdf.verdict); 4: the MAT's structural
+    # defects (qmdf.geometry.mat_structure)
+    version = "4"
 
     def fingerprint(self, ctx: StageContext) -> str:
         return file_digest(self._reference_path(ctx)) if ctx.cfg.reference else ""
@@ -138,6 +140,9 @@ class Evaluate(Stage):
                 metrics["field"]["sign_accuracy"],
                 metrics["field"]["grad_sdf_inside"],
             )
+        metrics["structure"] = structure(ctx, mat, field, ref_v, ref_f)
+        if metrics["structure"]:
+            ctx.log.info("structure: %s", metrics["structure"])
         metrics["verdict"] = verdict(evidence(ctx, metrics, recon, field, ref_v, ref_f))
         for reason in metrics["verdict"]["reasons"]:
             ctx.log.warning("quality: suspect: %s", reason)
@@ -155,6 +160,29 @@ class Evaluate(Stage):
         )
 
 
+def structure(ctx: StageContext, mat, field, ref_v: np.ndarray, ref_f: np.ndarray | None) -> dict:
+    """``mat_structure.structural_defects`` against the reference mesh, else a cloud's Poisson surface, else the
+    points with the learned sign as the inside; {} where there is no inside to check against."""
+    from qmdf.geometry.mat_structure import structural_defects
+    from qmdf.medial.radii import data_distance, inside_test
+
+    if ref_f is not None:
+        mesh, points = (np.asarray(ref_v, np.float64), np.asarray(ref_f, np.int64)), None
+    elif ctx.has("point_surface"):
+        from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface
+
+        surface = ctx.load("point_surface")
+        mesh, points = EvenlyMeshedSurface((np.asarray(surface.vertices), np.asarray(surface.faces))), None
+    elif field is not None:
+        mesh, points = None, np.asarray(ref_v, np.float64)
+    else:
+        return {}
+    distance, _ = data_distance(mesh, points)
+    return structural_defects(
+        mat.vertices, mat.radii, mat.edges, mat.faces, lambda q: distance(q)[0], inside_test(field, mesh)
+    )
+
+
 def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, ref_f: np.ndarray | None):
     """What the verdict checks (``qmdf.verdict.Evidence``), from the run's artifacts. The input's solid: the
     reference mesh where it is closed, else a cloud's closed Poisson surface."""
@@ -163,7 +191,8 @@ def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, 
     from qmdf.geometry.metrics import solid_euler
     from qmdf.verdict import Evidence, zero_set_distance
 
-    e = Evidence(chi=metrics["chi"], vertices=metrics["vertices"])
+    e = Evidence(chi=metrics["chi"], vertices=metrics["vertices"], structure=metrics.get("structure") or None)
+    e.edges, e.faces = len(ctx.load("mat").edges), metrics["faces"]
     e.sign_accuracy = (metrics.get("field") or {}).get("sign_accuracy")
     e.volume = float(recon.volume) if recon is not None and recon.is_watertight else None
     sup = (ctx.load("training").get("supervision") or {}) if ctx.has("training") else {}
