@@ -69,6 +69,7 @@ class Evaluate(Stage):
         "normalization": NORMALIZATION,
         "training": JSON,
         "point_surface": MESH,
+        "input_info": JSON,
     }
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
@@ -140,7 +141,7 @@ class Evaluate(Stage):
                 metrics["field"]["sign_accuracy"],
                 metrics["field"]["grad_sdf_inside"],
             )
-        metrics["structure"] = structure(ctx, mat, field, ref_v, ref_f)
+        metrics["structure"] = structure(ctx, mat, field)
         if metrics["structure"]:
             ctx.log.info("structure: %s", metrics["structure"])
         metrics["verdict"] = verdict(evidence(ctx, metrics, recon, field, ref_v, ref_f))
@@ -160,22 +161,17 @@ class Evaluate(Stage):
         )
 
 
-def structure(ctx: StageContext, mat, field, ref_v: np.ndarray, ref_f: np.ndarray | None) -> dict:
-    """``mat_structure.structural_defects`` against the reference mesh, else a cloud's Poisson surface, else the
-    points with the learned sign as the inside; {} where there is no inside to check against."""
+def structure(ctx: StageContext, mat, field) -> dict:
+    """``mat_structure.structural_defects`` against the data the MAT was built from (``stages.inputs.input_data``:
+    an input mesh, else a cloud's Poisson surface, else its points with the learned sign as the inside), not
+    against a clean reference: a noisy cloud's balls may stand out of the clean surface by its noise; {} where
+    there is no inside to check against."""
     from qmdf.geometry.mat_structure import structural_defects
     from qmdf.medial.radii import data_distance, inside_test
+    from qmdf.stages.inputs import input_data
 
-    if ref_f is not None:
-        mesh, points = (np.asarray(ref_v, np.float64), np.asarray(ref_f, np.int64)), None
-    elif ctx.has("point_surface"):
-        from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface
-
-        surface = ctx.load("point_surface")
-        mesh, points = EvenlyMeshedSurface((np.asarray(surface.vertices), np.asarray(surface.faces))), None
-    elif field is not None:
-        mesh, points = None, np.asarray(ref_v, np.float64)
-    else:
+    mesh, points = input_data(ctx)
+    if mesh is None and (points is None or field is None):
         return {}
     distance, _ = data_distance(mesh, points)
     return structural_defects(
