@@ -303,7 +303,9 @@ def supervise(ctx: StageContext, cfg: TrainConfig):
         "supervision: the %s route's targets for %d volume samples%s",
         route,
         cfg.volume_samples,
-        " (normals, a Poisson surface, its medial rays)" if route in ("oriented_points", "raw_points") else "",
+        f" (normals, {'a Poisson surface' if cfg.point_surface == 'poisson' else 'the points'}, medial rays)"
+        if route in ("oriented_points", "raw_points")
+        else "",
     )
     t0 = time.perf_counter()
     sup = build_supervision(
