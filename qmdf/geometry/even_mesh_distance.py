@@ -58,6 +58,7 @@ def _closest_over_rings(queries, near, ring_start, ring_faces, vertices, faces):
     for i in prange(n):
         p = queries[i]
         best = np.inf
+        closest[i] = p  # stays, at distance inf, where no face meets the nearest vertices
         for j in range(near.shape[1]):
             v = near[i, j]
             for k in range(ring_start[v], ring_start[v + 1]):
