@@ -4,8 +4,9 @@ An AABB tree's worst case is a query equally near every face: the centre of a sp
 medial balls are measured and centred. On a 3,000-point sphere's Poisson surface (16k vertices) each such query
 visited all 32k faces, and the sheet and export stages ran for minutes. On a surface whose edges are all about
 as long (marching cubes, a Poisson solve), the closest point lies on a face around one of the query's nearest
-vertices: a KD-tree finds those (its worst case is a tight loop over points, 20x cheaper than over faces), and
-the exact closest point is taken over their faces."""
+vertices: a KD-tree finds those (its worst case is a tight loop over points), and the exact closest point is
+taken over their faces. 3,000 queries at that sphere's centre: 0.32 s against the AABB tree's 10.2 s; 45k
+queries anywhere in the box: 0.99 s against 8.9 s (2 cores)."""
 
 from __future__ import annotations
 
