@@ -168,7 +168,8 @@ def _metrics_table(metrics: dict, stem: str) -> str:
         ("mean |grad sdf| inside", field.get("grad_sdf_inside"), None),
     ]
     structure = metrics.get("structure") or {}  # the MAT's parts that contradict the shape (mat_structure)
-    rows += [(f"structure: {k.replace('_', ' ')}", v, None) for k, v in structure.items() if k != "tolerance"]
+    counts = {k: v for k, v in structure.items() if k not in ("vertices", "edges", "faces", "tolerance")}
+    rows += [(f"structure: {k.replace('_', ' ')}", v, None) for k, v in counts.items()]
     paper = TABLE3.get(stem)
     paper_of = {"CD": paper[0] * 1e-3, "HD": paper[1] * 1e-3, "chi": paper[2]} if paper else {}
     out = ["<table><tr><th>metric</th><th>this run</th><th>paper (Table 3)</th></tr>"]

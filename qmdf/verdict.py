@@ -50,8 +50,6 @@ class Evidence:
     chi: int | None = None  # the MAT's
     input_chi: int | None = None  # the input solid's, where known
     vertices: int | None = None  # the MAT's
-    edges: int | None = None  # the MAT's, its faces' too
-    faces: int | None = None  # the MAT's
     structure: dict | None = None  # the MAT's structural defects (mat_structure.structural_defects)
     notes: list[str] = field(default_factory=list)
 
@@ -96,9 +94,9 @@ def verdict(e: Evidence, limits: VerdictLimits = VerdictLimits()) -> dict:
     st = e.structure or {}
     if st:
         shares = {
-            "vertices": st["defective_vertices"] / max(e.vertices or 0, 1),
-            "edges": st["edges_outside"] / max(e.edges or 0, 1),
-            "faces": st["faces_outside"] / max(e.faces or 0, 1),
+            "vertices": st["defective_vertices"] / max(st["vertices"], 1),
+            "edges": st["edges_outside"] / max(st["edges"], 1),
+            "faces": st["faces_outside"] / max(st["faces"], 1),
         }
         worst = max(shares, key=shares.get)
         if shares[worst] > limits.structural_share:

@@ -21,11 +21,16 @@ GOOD = dict(
     chi=0,
     input_chi=0,
     vertices=3000,
-    edges=8000,
-    faces=5000,
-    structure={"defective_vertices": 12, "edges_outside": 3, "faces_outside": 0},
+    structure={
+        "defective_vertices": 12,
+        "edges_outside": 3,
+        "faces_outside": 0,
+        "vertices": 3000,
+        "edges": 8000,
+        "faces": 5000,
+    },
 )
-STRUCTURE = {"defective_vertices": 12, "edges_outside": 3, "faces_outside": 0}
+STRUCTURE = GOOD["structure"]
 
 
 def test_a_good_result_is_ok_and_unknown_evidence_is_not_held_against_it():

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from qmdf.geometry.even_mesh_distance import even_mesh_distance_function
+from qmdf.geometry.even_mesh_distance import surface_distance_function
 from qmdf.geometry.inside import (
     mesh_distance_function,
     mesh_winding_number,
@@ -213,11 +213,11 @@ def build_supervision(
     if surface_targets:
         # every sample from the surface, the rays' depths too (a radius can over-shoot the axis by tol / 2); its
         # foot is the ray origin nearest to its closest surface point
-        v, f = mesh if route == "mesh" else proxy_mesh
-        # a Poisson surface is evenly meshed: distances near its vertices, not the AABB tree's worst case by an axis
-        # (a 3,000-point sphere: every sample near its centre equally near all 118k faces, minutes)
-        distance = mesh_distance_function if route == "mesh" else even_mesh_distance_function
-        d, closest = distance(v, f)(volume)
+        surface = mesh if route == "mesh" else proxy_mesh
+        v, f = surface
+        # the Poisson surface is an EvenlyMeshedSurface: distances near its vertices, not the AABB tree's worst case
+        # by an axis (a 3,000-point sphere: every sample near its centre equally near all 118k faces, minutes)
+        d, closest = surface_distance_function(surface)(volume)
         sdf = np.where(mesh_winding_number(v, f, volume) > 0.5, -d, d)
         foot = cKDTree(points if origins is None else origins).query(closest[free], workers=-1)[1]
     elif route != "paper":

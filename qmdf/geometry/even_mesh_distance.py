@@ -97,3 +97,13 @@ def even_mesh_distance_function(vertices: np.ndarray, faces: np.ndarray):
         return _closest_over_rings(q, near, ring_start, ring_faces, vertices, faces)
 
     return distance
+
+
+def surface_distance_function(mesh):
+    """``distance(q) -> (d, closest point)`` to a ``(vertices, faces)`` pair: near the vertices of an
+    ``EvenlyMeshedSurface``, else by the AABB tree (any mesh: a CAD model's long faces have far vertices)."""
+    from qmdf.geometry.inside import mesh_distance_function
+
+    if isinstance(mesh, EvenlyMeshedSurface):
+        return even_mesh_distance_function(*mesh)
+    return mesh_distance_function(*mesh)

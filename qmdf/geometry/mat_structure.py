@@ -33,8 +33,9 @@ def structural_defects(
     is_inside: Callable[[np.ndarray], np.ndarray],
     tolerance: float = TOLERANCE,
 ) -> dict:
-    """The counts of the module doc, the vertices with any defect (``defective_vertices``) and ``tolerance``;
-    ``distance(q)``: unsigned distance to the shape's surface, ``is_inside(q)``: a bool mask."""
+    """The counts of the module doc, the vertices with any defect (``defective_vertices``), the MAT's own
+    ``vertices``, ``edges`` and ``faces`` (what the counts are shares of) and ``tolerance``; ``distance(q)``:
+    unsigned distance to the shape's surface, ``is_inside(q)``: a bool mask."""
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     r = np.asarray(radii, np.float64)
     e = np.asarray(edges, np.int64).reshape(-1, 2)
@@ -59,5 +60,8 @@ def structural_defects(
         "edges_outside": int(edges_out.sum()),
         "faces_outside": int(faces_out.sum()),
         "defective_vertices": int((outside | protruding | zero_inside).sum()),
+        "vertices": len(v),
+        "edges": len(e),
+        "faces": len(f),
         "tolerance": float(tolerance),
     }

@@ -48,17 +48,14 @@ def mat_radii(
 
 
 def data_distance(mesh: tuple[np.ndarray, np.ndarray] | None = None, points: np.ndarray | None = None):
-    """(distance, tol): ``distance(q) -> (d, closest point)`` to the ``mesh`` (one AABB tree; near the vertices of an
-    ``EvenlyMeshedSurface``) or else the ``points``
-    (one KD-tree), and the tolerance of a ball test against them: a mesh's facet tolerance (3e-4 + 8% of the
-    median edge), a quarter of the points' median distance to their 8th neighbour."""
+    """(distance, tol): ``distance(q) -> (d, closest point)`` to the ``mesh`` (``surface_distance_function``) or
+    else the ``points`` (one KD-tree), and the tolerance of a ball test against them: a mesh's facet tolerance
+    (3e-4 + 8% of the median edge), a quarter of the points' median distance to their 8th neighbour."""
     if mesh is not None:
-        from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface, even_mesh_distance_function
-        from qmdf.geometry.inside import mesh_distance_function
+        from qmdf.geometry.even_mesh_distance import surface_distance_function
         from qmdf.geometry.triangles import facet_tolerance
 
-        near_vertices = isinstance(mesh, EvenlyMeshedSurface)  # a Poisson surface: no AABB worst case by an axis
-        return (even_mesh_distance_function if near_vertices else mesh_distance_function)(*mesh), facet_tolerance(*mesh)
+        return surface_distance_function(mesh), facet_tolerance(*mesh)
     if points is None:
         raise ValueError("a distance to the data needs the input mesh or points")
     from scipy.spatial import cKDTree

@@ -35,7 +35,6 @@ def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, 
     from qmdf.verdict import Evidence, zero_set_distance
 
     e = Evidence(chi=metrics["chi"], vertices=metrics["vertices"], structure=metrics.get("structure") or None)
-    e.edges, e.faces = len(ctx.load("mat").edges), metrics["faces"]
     e.sign_accuracy = (metrics.get("field") or {}).get("sign_accuracy")
     e.volume = float(recon.volume) if recon is not None and recon.is_watertight else None
     sup = (ctx.load("training").get("supervision") or {}) if ctx.has("training") else {}
