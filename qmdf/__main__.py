@@ -107,10 +107,10 @@ def main() -> None:
 
     from qmdf.config import register_configs
 
-    if any(a in ("--help", "-h") for a in sys.argv[1:]):
+    if any(a in ("--help", "-h", "--help-expert") for a in sys.argv[1:]):
         from qmdf.cli_help import help_text
 
-        sys.stdout.write(help_text(conf_dir()))
+        sys.stdout.write(help_text(conf_dir(), expert="--help-expert" in sys.argv[1:]))
         raise SystemExit(0)
     sys.argv[1:] = quote_paths(sys.argv[1:])
     # One fresh name per invocation: the run (or the sweep) directory. Jobs of a multirun share it.

@@ -20,9 +20,14 @@ degradations and shapes installed."""
 
 def _rows(cls: type, prefix: str) -> list[tuple[str, str, str]]:
     out = []
+    nested = {f.name: f.metadata.get("schemas") for f in dataclasses.fields(cls)}
     for name, typ, default, doc in schema.describe(cls):
         if dataclasses.is_dataclass(default):
             out += _rows(type(default), f"{prefix}{name}.")
+            continue
+        if nested.get(name):  # one group per registered component, each with its own settings
+            for key, settings in nested[name]().items():
+                out += _rows(settings, f"{prefix}{name}.{key}.")
             continue
         shown = "{...}" if isinstance(default, dict) and default else repr(default)
         out.append((f"{prefix}{name}", f"{typ} = {shown}", doc))
@@ -50,11 +55,21 @@ def config_groups(conf: Path) -> dict[str, list[str]]:
     }
 
 
-def help_text(conf: Path, width: int = 118) -> str:
+def help_text(conf: Path, width: int = 118, expert: bool = False) -> str:
+    """The help; the tuned constants of a stage's ``expert`` group as one line each unless ``expert``."""
     lines = [USAGE, "", "config groups (add with +GROUP=NAME):"]
     lines += [f"  +{group}=  {', '.join(names)}" for group, names in config_groups(conf).items()]
     lines += ["", "settings (KEY=VALUE; python -m qmdf --cfg job shows the composed values):"]
-    for key, typed, doc in settings_rows():
+    rows = settings_rows()
+    folded: set[str] = set()
+    for key, typed, doc in rows:
+        group = key.split(".expert.")[0] + ".expert" if ".expert." in key else None
+        if group and not expert:
+            if group not in folded:
+                folded.add(group)
+                n = sum(k.startswith(group + ".") for k, _, _ in rows)
+                lines.append(f"  {group}.*  ({n} tuned constants, each with its measurement: --help-expert lists them)")
+            continue
         lines.append(f"  {key}  ({typed})")
         if doc:
             lines += textwrap.wrap(doc, width, initial_indent="      ", subsequent_indent="      ")

@@ -70,6 +70,8 @@ def score_mat(
         "chi": chi,
         "chi_rule": chi_rule,
         "boundary_smoothness": M.boundary_smoothness(mat.vertices, boundary) if len(boundary) else None,
+        # the same on the boundary resampled every 0.01 of the unit box: subdividing a jagged boundary lowers C_avg
+        "boundary_smoothness_resampled": M.boundary_smoothness(mat.vertices, boundary, 0.01) if len(boundary) else None,
         "boundary_rule": boundary_rule,
         "boundary_edges": int(len(boundary)),
         "vertices": int(len(mat.vertices)),

@@ -159,6 +159,7 @@ def _metrics_table(metrics: dict, stem: str) -> str:
         ("HD", metrics.get("hausdorff"), 1e-3),
         ("chi", metrics.get("chi"), None),
         ("boundary smoothness C_avg", metrics.get("boundary_smoothness"), None),
+        ("C_avg, boundary resampled every 0.01", metrics.get("boundary_smoothness_resampled"), None),
         ("vertices", metrics.get("vertices"), None),
         ("faces", metrics.get("faces"), None),
     ]

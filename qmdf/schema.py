@@ -33,9 +33,13 @@ def param(
     le: float | None = None,
     choices: Sequence[Any] | None = None,
     doc: str = "",
+    schemas: Any = None,
 ) -> Any:
-    """A dataclass field with bounds that ``check_section`` enforces and a one-line doc for listings."""
+    """A dataclass field with bounds that ``check_section`` enforces and a one-line doc for listings.
+    ``schemas() -> {name: dataclass}``: a mapping field whose entries are settings of registered components (a
+    sheet step's, a backbone's), for listings."""
     meta = {"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": tuple(choices) if choices else None, "doc": doc}
+    meta["schemas"] = schemas
     if factory is not _MISSING:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -173,6 +177,20 @@ def check_section(schema: type, node: Any, path: str) -> list[Problem]:
         except Exception:  # a value the check cannot even hold: already reported above
             return problems
         problems += [Problem(_join(path, k) if k else path, msg) for k, msg in check(instance)]
+    return problems
+
+
+def check_registered(table: Mapping[str, Any], registry: Any, path: str) -> list[tuple[str, str]]:
+    """Problems of a name -> settings table whose names are ``registry``'s components (a degradation's, a
+    backbone's, a loss's, a sheet step's): each unknown name, and each entry against its component's schema; keys
+    relative to the section, as a schema's ``check`` returns them."""
+    problems: list[tuple[str, str]] = []
+    for name, settings in table.items():
+        if name not in registry:
+            problems.append((f"{path}.{name}", registry.why_missing(name)))
+        elif registry.get(name).config is not None:
+            found = check_section(registry.get(name).config, settings or {}, f"{path}.{name}")
+            problems += [(p.key, p.message) for p in found]
     return problems
 
 

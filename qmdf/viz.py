@@ -90,6 +90,28 @@ def render_mesh(
     return path
 
 
+def render_mat_pictures(folder: Path, mat, covering=None, membrane=None) -> None:
+    """export's pictures: ``mat.png`` (the MAT coloured by radius, lone edges black, seams red) and, with the
+    ``covering`` and the contracted ``membrane``, ``covering_before.png`` and ``covering_after.png``."""
+    from qmdf.geometry.metrics import seam_edges
+
+    v, f = mat.vertices, mat.faces
+    render_mesh(
+        folder / "mat.png",
+        v,
+        f,
+        mat.radii,
+        label="radius (unit box)",
+        title=f"medial mesh: {len(v)} vertices, {len(f)} faces; lone edges black, seams red",
+        lines=((mat.lone_edges(), "black"), (seam_edges(f), "red")),
+    )
+    if covering is not None:
+        render_mesh(folder / "covering_before.png", covering.vertices, covering.faces, title="eps-covering")
+        render_mesh(
+            folder / "covering_after.png", membrane.vertices, membrane.faces, title="after contraction (the membrane)"
+        )
+
+
 def plot_field_slices(path: Path, field, resolution: int = 160, extent: float = 0.6) -> Path:
     """SDF, MF and Q-MDF on the planes z = 0 and y = 0 (like the paper's Fig. 3 and 6), zero set in black,
     the eps = 0.005 level of Q-MDF inside the shape in red."""

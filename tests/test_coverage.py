@@ -45,10 +45,18 @@ def test_surface_balls_of_a_mesh_are_the_exact_medial_balls():
 def test_surface_balls_reuse_the_mesh_routes_medial_rays():
     """train's mesh route measures the same balls from the same samples: coverage takes them as they are, and
     measures anew for other samples."""
+    from qmdf.fields.settings import SupervisionSettings
     from qmdf.fields.supervision import build_supervision
 
     mesh, samples = _ellipsoid_data(3000)
-    sup = build_supervision("mesh", samples.points, samples.normals, np.random.default_rng(0), mesh, 2000)
+    sup = build_supervision(
+        "mesh",
+        samples.points,
+        samples.normals,
+        np.random.default_rng(0),
+        mesh,
+        SupervisionSettings(volume_samples=2000),
+    )
     rays = {"origins": samples.points, "directions": sup.ray_normals, "radii": sup.radii, "tol": 0.0}
     rays["tol"] = sup.stats["ray_tolerance"]
     measured = surface_balls(samples.points, samples.normals, mesh)

@@ -90,7 +90,7 @@ def test_analytic_field_answers_in_the_unit_box_of_its_input():
 
 @pytest.mark.slow
 def test_torus_chain_lands_on_the_medial_circle(compose_cfg, tmp_path):
-    res = Pipeline(compose_cfg(*CHAIN, "sheet.off_axis_wide=3"), tmp_path / "run", tmp_path).run()
+    res = Pipeline(compose_cfg(*CHAIN, "sheet.expert.off_axis_wide=3"), tmp_path / "run", tmp_path).run()
     stats = res.load("covering_stats")
     assert stats["watertight"] and stats["components"] == 1 and stats["genus"] == [1]
     assert stats["evaluated_nodes"] < 0.2 * stats["grid_nodes"]  # only the narrow band was evaluated
@@ -277,19 +277,13 @@ def test_contraction_stays_inside_the_shape(weight):
     """A covering just outside the ridge (the cover stage allows up to two voxels outside): with the paper's q
     (weight 0) its vertices run outward, with q continued as mf + sdf they come back and go in (this field's q
     falls all the way to the centre)."""
-    from qmdf.medial.contraction import contract
+    from qmdf.medial.contraction import ContractionSettings, contract
 
     s = trimesh.creation.icosphere(subdivisions=3, radius=0.302)
-    x = contract(
-        _RidgeSphere(),
-        np.asarray(s.vertices),
-        np.asarray(s.faces),
-        iterations=300,
-        lattice=0,
-        lambda_volume=0.0,
-        lambda_laplacian=1.0,
-        outside_weight=weight,
-    )[0]
+    settings = ContractionSettings(
+        iterations=300, lattice=0, lambda_volume=0.0, lambda_laplacian=1.0, outside_weight=weight
+    )
+    x = contract(_RidgeSphere(), np.asarray(s.vertices), np.asarray(s.faces), settings=settings)[0]
     r = np.linalg.norm(x, axis=1)
     if weight == 0:
         assert r.min() > 0.33  # every vertex left: the ridge is behind them
@@ -302,7 +296,7 @@ def test_a_sheet_that_cannot_be_made_compact_leaves_the_membrane_as_the_mat(comp
     """The torus's circle cannot go below three vertices: asked for two with no slack, the sheet is judged not
     compact, and export writes the membrane (faces, two layers) as the MAT with a warning, the sheet kept."""
     res = Pipeline(
-        compose_cfg(*CHAIN, "sheet.target_vertices=2", "sheet.compact_slack=1"), tmp_path / "run", tmp_path
+        compose_cfg(*CHAIN, "sheet.target_vertices=2", "sheet.expert.compact_slack=1"), tmp_path / "run", tmp_path
     ).run()
     assert res.load("sheet_stats")["compact"] is False and len(res.load("sheet").faces) == 0
     assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0
@@ -318,7 +312,7 @@ def test_a_sheet_that_fits_far_worse_than_the_membrane_is_not_the_mat(compose_cf
     of the tube: export writes the membrane as the MAT, with a warning; with the default budget the sheet (a
     closed polyline) fits and is the MAT."""
     res = Pipeline(
-        compose_cfg(*CHAIN, "sheet.target_vertices=3", "sheet.coverage_vertices=0"), tmp_path / "run", tmp_path
+        compose_cfg(*CHAIN, "sheet.target_vertices=3", "sheet.step.coverage.vertices=0"), tmp_path / "run", tmp_path
     ).run()
     assert len(res.load("sheet").vertices) == 3 and res.load("sheet_stats")["compact"] is True
     assert len(res.load("mat").faces) == len(res.load("membrane").faces) > 0

@@ -86,10 +86,10 @@ def test_feature_retrain_pins_the_field_to_the_features(compose_cfg, tmp_path):
     cfg = compose_cfg(
         "input.shape=box",
         "pipeline.stages=[sample,train,feature_detect,feature_retrain]",
-        "train.steps=60",
-        "train.surface_batch=512",
-        "train.volume_batch=512",
-        "train.supervision=paper",
+        "train.optim.steps=60",
+        "train.optim.surface_batch=512",
+        "train.optim.volume_batch=512",
+        "train.supervision.route=paper",
         "feature_retrain.steps=60",
         "feature_detect.spacing=0.02",
     )
@@ -118,12 +118,14 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
     from scipy.spatial import cKDTree
 
     from qmdf.fields.analytic import BoxField
-    from qmdf.medial.contraction import contract
-    from qmdf.medial.covering import build_covering
+    from qmdf.medial.contraction import ContractionSettings, contract
+    from qmdf.medial.covering import CoveringSettings, build_covering
 
     field, sharp = BoxField(), box_edge_samples(0.01)
     voxel = 2 * 0.55 / (96 - 1)
-    covering, _, _ = build_covering(field, resolution=96, eps=0.01, max_faces=0, log=logging.getLogger("test"))
+    covering, _, _ = build_covering(
+        field, CoveringSettings(resolution=96, eps=0.01, max_faces=0), log=logging.getLogger("test")
+    )
     d = cKDTree(covering.vertices).query(sharp)[0]
     # measured 0.58 / 0.72 voxel; the step to a constant outside gave 0.78 / 1.02
     assert np.median(d) < 0.65 * voxel and np.percentile(d, 90) < 0.85 * voxel, (
@@ -141,9 +143,8 @@ def test_covering_and_pulled_membrane_reach_the_box_edges():
 
     folded = {}
     for weight, zip_weight in ((10.0, 0.0), (0.0, 0.0), (10.0, 1000.0)):
-        x, history, vol0, _ = contract(
-            field, v, f, features=sharp, iterations=300, feature_weight=weight, zip_weight=zip_weight
-        )
+        settings = ContractionSettings(iterations=300, feature_weight=weight, zip_weight=zip_weight)
+        x, history, vol0, _ = contract(field, v, f, features=sharp, settings=settings)
         reach[weight, zip_weight] = np.mean(cKDTree(x).query(sharp)[0] < 0.003)
         mat = MedialMesh(x, np.abs(field.evaluate(x)["sdf"]), np.zeros((0, 2), np.int64), f).with_face_edges()
         folded[weight, zip_weight] = np.mean(boundary_distance(sharp, mat) < 0.01)
@@ -285,7 +286,7 @@ def test_layer_zip_closes_the_layers_near_features_only():
     overshoot each other under Adam's normalised steps: the pairs must hold to bring them back."""
     import trimesh
 
-    from qmdf.medial.contraction import contract
+    from qmdf.medial.contraction import ContractionSettings, contract
 
     slab = trimesh.creation.box(extents=(0.3, 0.008, 0.1))
     while slab.edges_unique_length.max() > 0.01:
@@ -299,11 +300,7 @@ def test_layer_zip_closes_the_layers_near_features_only():
         return np.abs(x[sel, 1]).mean() * 2  # the layers' distance
 
     for weight, near_after, far_after in ((1000.0, (0, 2e-3), (7e-3, 9e-3)), (0.0, (7e-3, 9e-3), (7e-3, 9e-3))):
-        x = contract(
-            _FlatField(),
-            v,
-            f,
-            features=feats,
+        settings = ContractionSettings(
             iterations=300,
             lattice=0,
             lambda_volume=0,
@@ -312,6 +309,7 @@ def test_layer_zip_closes_the_layers_near_features_only():
             zip_weight=weight,
             zip_reach=0.01,
             zip_near=0.05,
-        )[0]
+        )
+        x = contract(_FlatField(), v, f, features=feats, settings=settings)[0]
         near, far = gap(x, lambda s: (s > 0.1) & (s < 0.14)), gap(x, lambda s: s < 0.05)
         assert near_after[0] <= near <= near_after[1] and far_after[0] <= far <= far_after[1], (weight, near, far)

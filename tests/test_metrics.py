@@ -88,6 +88,27 @@ def test_boundary_edges_and_smoothness_of_known_curves():
     assert M.boundary_smoothness(line, np.c_[np.arange(4), np.arange(1, 5)]) == 0.0
 
 
+def test_resampled_smoothness_does_not_reward_subdivision():
+    """A circle of radius 0.3 resampled every 0.01 turns by 2 pi over its length whatever its vertex count;
+    a sawtooth rim stays rough when subdivided, which lowers the paper's C_avg but not the resampled one."""
+
+    def loop(n, tooth=0.0):
+        t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+        rad = 0.3 + tooth * (np.arange(n) % 2)
+        return np.c_[rad * np.cos(t), rad * np.sin(t), np.zeros(n)], np.c_[np.arange(n), (np.arange(n) + 1) % n]
+
+    for n in (40, 400):
+        v, e = loop(n)
+        assert M.boundary_smoothness(v, e, 0.01) == pytest.approx(2 * np.pi / (2 * np.pi * 0.3 / 0.01), rel=0.1)
+    coarse, fine = loop(60, 0.02), loop(60, 0.02)
+    fine_v = np.repeat(fine[0], 4, axis=0)  # each vertex four times, then spread along the edge to the next
+    fine_v = fine_v + (np.roll(fine[0], -1, 0) - fine[0]).repeat(4, axis=0) * np.tile(np.arange(4) / 4, 60)[:, None]
+    fine_e = np.c_[np.arange(240), (np.arange(240) + 1) % 240]
+    assert M.boundary_smoothness(fine_v, fine_e) < 0.5 * M.boundary_smoothness(*coarse)
+    assert M.boundary_smoothness(fine_v, fine_e, 0.01) == pytest.approx(M.boundary_smoothness(*coarse, 0.01), rel=0.1)
+    assert M.boundary_smoothness(*coarse, 0.01) > 5 * M.boundary_smoothness(*loop(60), 0.01)
+
+
 def test_fold_edges_find_the_rim_of_a_flattened_double_cover():
     # a closed "pita": two fans over one ring, a hair apart, fold back along the ring
     n = 24

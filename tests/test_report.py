@@ -18,7 +18,13 @@ def report_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("report")
     res = run(
         None,
-        [f"cache.dir={tmp / 'cache'}", *FAST, "pipeline.report=true", "train.picture=true", "export.picture=true"],
+        [
+            f"cache.dir={tmp / 'cache'}",
+            *FAST,
+            "pipeline.report=true",
+            "train.trainer.picture=true",
+            "export.picture=true",
+        ],
         run_dir=tmp / "run",
     )
     return res.run_dir

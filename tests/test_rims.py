@@ -124,7 +124,7 @@ def test_the_guard_keeps_moves_that_improve_the_fit_and_sends_back_one_that_does
 
     assert fit(out, radii) < 0.8 * fit(v, r)  # 1.01e-3 -> 0.75e-3 (the coarse disc's slabs keep the rest)
     # a move that shrinks the envelope goes back; the good ones beside it stay
-    from qmdf.medial.rims import _keep_gains
+    from qmdf.medial.rims import keep_local_gains
 
     rim = np.arange(len(v) - 48, len(v))
     moved_v, moved_r = out.copy(), radii.copy()
@@ -132,7 +132,7 @@ def test_the_guard_keeps_moves_that_improve_the_fit_and_sends_back_one_that_does
     moved_v[bad] = v[bad] * 0.75 / 0.9
     moved_r[bad] = distance(moved_v[bad])[0]
     moved = np.ones(48, bool)
-    back = _keep_gains(v, r, moved_v, moved_r, none, f, rim, moved, samples, 1e-4)
+    back = keep_local_gains(v, r, moved_v, moved_r, none, f, rim, moved, samples, 1e-4)
     # the six go back, and with them some neighbours that share their samples (the blame is by reach)
     assert set(range(6)) <= set(np.flatnonzero(~moved)) and back == (~moved).sum() <= 12
     assert np.array_equal(moved_v[bad], v[bad]) and np.array_equal(moved_v[rim[moved]], out[rim[moved]])

@@ -153,6 +153,33 @@ def test_simplify_a_curved_sheet_keeps_its_envelope_close(target):
     assert np.abs(union.sdf(tops)).max() < 0.1 * r.max()
 
 
+def test_simplify_under_a_deviation_goes_as_far_as_the_shape_allows():
+    """With max_deviation, the vertex count follows the shape: a flat sheet of constant radius (its envelope two
+    planes, moved by no collapse) goes down to its corners' few vertices; a curved one stops where a collapse
+    would move the envelope by more than the deviation, the more vertices the smaller it is, every original
+    point of the original envelope within the deviation of the simplified one (root mean square), within three
+    of them at most."""
+    from qmdf.geometry.envelope import EnvelopeUnion, sample_union_surface
+    from qmdf.geometry.ma_format import MedialMesh
+
+    v, f = _grid_sheet(30, 30)
+    flat = simplify_medial_mesh(v, np.full(len(v), 0.1), np.zeros((0, 2)), f, 1, max_deviation=1e-4)
+    assert len(flat.vertices) <= 12 and euler_medial_mesh(len(flat.vertices), flat.edges, flat.faces) == 1
+    v, f = _grid_sheet(30, 30, lambda x, y: 0.2 * np.sin(2 * x) * np.cos(y))
+    r = 0.05 + 0.05 * v[:, 0]
+    original = EnvelopeUnion.from_mat(MedialMesh(v, r, np.zeros((0, 2)), f).with_face_edges())
+    on_original = sample_union_surface(original, 5000, np.random.default_rng(0))
+    counts = []
+    for deviation in (3e-3, 1e-3, 1e-4):
+        res = simplify_medial_mesh(v, r, np.zeros((0, 2)), f, 1, max_deviation=deviation)
+        counts.append(len(res.vertices))
+        assert res.stats["over_deviation"] > 0
+        union = EnvelopeUnion.from_mat(MedialMesh(res.vertices, res.radii, res.edges, res.faces).with_face_edges())
+        moved = np.abs(union.sdf(on_original))
+        assert np.sqrt(np.mean(moved**2)) < deviation and moved.max() < 3 * deviation
+    assert counts[0] < counts[1] < counts[2] < len(v)
+
+
 def test_the_collapse_takes_every_kth_node_within_the_node_budget():
     from qmdf.medial.sheet import node_stride
 
@@ -238,83 +265,6 @@ def test_redundant_edges_against_the_plain_loops():
     assert 0 < want.sum() < lone.sum() and np.array_equal(got, want)
 
 
-def test_coverage_that_fits_worse_is_not_kept():
-    """simplified_sheet keeps the MAT before coverage where coverage made its envelope's fit worse."""
-    from qmdf.medial.sheet import simplified_sheet
-
-    q = np.abs(Z) + np.maximum(R - 0.4, 0)
-    v, f = _disc_membrane(0.4)
-    grid = {"inside": q < 0.03, "lo": LO, "spacing": SPACING, "eps": 0.03}
-
-    def worse(v, r, e, f, budget):  # an added vertex with a huge ball
-        return np.vstack([v, [[0, 0, 0.5]]]), np.r_[r, 0.3], np.vstack([e, [[0, len(v)]]]).astype(int), f, {"added": 1}
-
-    runs = {}
-    for name, fit in (("kept", None), ("judged", lambda v, r, e, f: float(r.max()))):
-        mat, stats = simplified_sheet(
-            grid,
-            lambda p: {
-                "q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0),
-                "sdf": -0.1 + 0 * p[:, 0],
-            },
-            v,
-            f,
-            lambda x: np.full(len(x), 0.05),
-            target_vertices=0,
-            refine_of=worse,
-            refine_vertices=5,
-            fit_of=fit,
-        )
-        runs[name] = (mat, stats)
-    assert len(runs["kept"][0].vertices) == len(runs["judged"][0].vertices) + 1
-    assert runs["judged"][1]["coverage"]["kept"] is False and runs["judged"][0].radii.max() == 0.05
-
-
-def test_an_envelope_fit_is_kept_only_where_it_fits_better():
-    """simplified_sheet hands the finished sheet and its tips to fit_envelope_of, keeps the fitted spheres only
-    where fit_of says the fit improved, and records the kept sheet's CD for pick_sheet."""
-    from qmdf.medial.sheet import simplified_sheet
-
-    q = np.abs(Z) + np.maximum(R - 0.4, 0)
-    v, f = _disc_membrane(0.4)
-    grid = {"inside": q < 0.03, "lo": LO, "spacing": SPACING, "eps": 0.03}
-    seen = {}
-
-    def grown(scale):
-        def fit_envelope_of(v, r, e, f, fixed):
-            seen["fixed"] = fixed
-            return v + [0, 0, 0.01], r * scale, {"mean_distance": [1.0, 0.5], "iteration": 1}
-
-        return fit_envelope_of
-
-    def fit_of(v, r, e, f):  # a fake fit: the closer the largest radius to 0.06, the better
-        return abs(float(r.max()) - 0.06)
-
-    runs = {}
-    for scale in (1.2, 2.0):
-        runs[scale] = simplified_sheet(
-            grid,
-            lambda p: {
-                "q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0),
-                "sdf": -0.1 + 0 * p[:, 0],
-            },
-            v,
-            f,
-            lambda x: np.full(len(x), 0.05),
-            target_vertices=0,
-            tips=np.array([[0.0, 0.0, 0.0]]),
-            tip_reach=0.05,
-            fit_of=fit_of,
-            fit_envelope_of=grown(scale),
-        )
-        assert seen["fixed"] is not None and 0 < seen["fixed"].sum() < len(seen["fixed"])
-    better, worse = runs[1.2], runs[2.0]
-    assert better[1]["envelope_fit"]["kept"] and np.allclose(better[0].radii, 0.06)
-    assert np.isclose(better[1]["cd"], 0.0) and np.allclose(better[0].vertices[:, 2], 0.01)
-    assert worse[1]["envelope_fit"]["kept"] is False and np.allclose(worse[0].radii, 0.05)
-    assert np.isclose(worse[1]["cd"], 0.01) and np.allclose(worse[0].vertices[:, 2], 0.0, atol=1e-9)
-
-
 def test_valley_squares_and_edges_are_where_q_is_lowest_across_them():
     """A slab five nodes thick with q lowest on one node layer: the cubes collapse onto that layer, leaving walls
     across the slab (squares facing x or y) that only the keep level held; a wall is a valley only where q is
@@ -344,7 +294,7 @@ def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
     """A disc's covering six node layers thick with an island of nodes left out in its middle (q above eps
     there, as around a junction of sheets): kept, the collapse would close a pocket around it (chi 2). The void
     is filled where the sdf reads inside all over it; where the shape is hollow there (sdf > 0), it stays."""
-    from qmdf.medial.sheet import fill_voids, simplified_sheet
+    from qmdf.medial.sheet import fill_voids, sheet_counts, thinned_sheet
 
     q = np.abs(Z) + np.maximum(R - 0.4, 0)
     island = np.sqrt(X**2 + Y**2 + Z**2) < H  # the 2 x 2 x 2 nodes around the grid's middle
@@ -355,16 +305,15 @@ def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
     assert stats["voids"] == 1 and stats["filled"] == (0 if hollow else 1)
     assert np.array_equal(filled, inside | (island & (not hollow)))
     v, f = _disc_membrane(0.4)
-    mat, stats = simplified_sheet(
+    mat, stats = thinned_sheet(
         {"inside": inside, "lo": LO, "spacing": SPACING, "eps": 0.06},
         lambda p: {"q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0), "sdf": sdf_at(p)},
         v,
         f,
         lambda x: np.full(len(x), 0.05),
-        target_vertices=0,
     )
     assert stats["voids"]["filled"] == (0 if hollow else 1)
-    assert stats["after"]["chi"] == (2 if hollow else 1)
+    assert sheet_counts(mat)["chi"] == (2 if hollow else 1)
 
 
 def test_cubical_euler_against_known_solids_and_the_complex_itself():
@@ -394,7 +343,7 @@ def _ring_with_bar():
 
 
 def _ring_with_bar_sheet_args(q):
-    """``simplified_sheet``'s first five arguments for ``_ring_with_bar``'s covering at 0.07, placed on a thin
+    """``thinned_sheet``'s first five arguments for ``_ring_with_bar``'s covering at 0.07, placed on a thin
     ring's surface."""
     tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
     grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
@@ -421,15 +370,15 @@ def test_the_level_with_the_shapes_topology_is_the_highest_one_below_a_bridge():
 
 
 def test_the_sheet_takes_the_level_of_the_shapes_topology():
-    from qmdf.medial.sheet import simplified_sheet
+    from qmdf.medial.sheet import sheet_counts, thinned_sheet
 
     q = _ring_with_bar()
     args = _ring_with_bar_sheet_args(q)
-    _, plain = simplified_sheet(*args, target_vertices=0)
-    assert plain["after"]["chi"] == -1 and plain["level"] is None
-    _, matched = simplified_sheet(*args, target_vertices=0, target_chi=0)
-    assert matched["after"]["chi"] == 0 and matched["level"]["eps"] < 0.04 + H
-    assert matched["after"]["faces"] == 0  # the ring's polyline, the bar gone
+    plain_mat, plain = thinned_sheet(*args)
+    assert sheet_counts(plain_mat)["chi"] == -1 and plain["level"] is None
+    matched_mat, matched = thinned_sheet(*args, target_chi=0)
+    assert sheet_counts(matched_mat)["chi"] == 0 and matched["level"]["eps"] < 0.04 + H
+    assert len(matched_mat.faces) == 0  # the ring's polyline, the bar gone
 
 
 def test_the_solid_euler_characteristic_of_a_closed_mesh_and_none_of_an_open_one():
@@ -444,16 +393,16 @@ def test_the_solid_euler_characteristic_of_a_closed_mesh_and_none_of_an_open_one
 
 
 def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
-    from qmdf.medial.sheet import simplified_sheet
+    from qmdf.medial.sheet import CollapseSettings, sheet_counts, thinned_sheet
 
     q = _ring_with_bar()  # every level from 0.07 down to 0.021 has chi -1 or 0, none the ball's 1
     args = _ring_with_bar_sheet_args(q)
-    _, kept = simplified_sheet(*args, target_vertices=0, target_chi=1, grow_topology=False)
-    assert kept["level"]["eps"] is None and kept["after"]["chi"] == -1  # the covering's nodes as they are
-    mat, grown = simplified_sheet(*args, target_vertices=0, target_chi=1)
-    assert grown["after"]["chi"] == 1 and grown["level"]["grown"]["chi"] == 1
+    kept_mat, kept = thinned_sheet(*args, CollapseSettings(grow_topology=False), target_chi=1)
+    assert kept["level"]["eps"] is None and sheet_counts(kept_mat)["chi"] == -1  # the covering's nodes as they are
+    mat, grown = thinned_sheet(*args, target_chi=1)
+    assert sheet_counts(mat)["chi"] == 1 and grown["level"]["grown"]["chi"] == 1
     assert grown["level"]["grown"]["refused"] > 0
-    assert grown["after"]["faces"] == 0  # a tree of polylines: both loops cut
+    assert len(mat.faces) == 0  # a tree of polylines: both loops cut
     # the tree still follows the ring: most of the circle's length is kept
     on_ring = np.abs(np.hypot(mat.vertices[:, 0], mat.vertices[:, 1]) - 0.3) < 2 * H
     assert on_ring.sum() > 0.8 * (2 * np.pi * 0.3 / H)
@@ -462,23 +411,23 @@ def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
 def test_pick_sheet_prefers_compact_then_the_shapes_chi_then_the_better_fit():
     """Of several sheets of one shape, a compact one beats a better-fitting one that is not; then the input's
     chi; then the fit (here a fake fit: the largest radius)."""
-    from qmdf.geometry.ma_format import MedialMesh
+    from qmdf.medial.refinement import MAT
     from qmdf.medial.sheet import pick_sheet
 
     def sheet(radius, compact, chi):
         v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-        mat = MedialMesh(v, np.full(3, radius), np.zeros((0, 2), int), np.array([[0, 1, 2]]))
-        return mat, {"compact": compact, "after": {"chi": chi}}
+        mat = MAT(v, np.full(3, radius), np.zeros((0, 2), int), np.array([[0, 1, 2]]))
+        return mat, {"compact": compact, "after": {"chi": chi}, "cd": None}
 
-    def fit(v, r, e, f):
-        return float(r.max())
+    def fit(mat):
+        return float(mat.radii.max())
 
     loose, wrong_chi, right, worse = sheet(0.1, False, 1), sheet(0.2, True, 0), sheet(0.3, True, 1), sheet(0.4, True, 1)
     kept, rows = pick_sheet([loose, wrong_chi, worse, right], fit, target_chi=1)
     assert kept == 3 and [r["cd"] for r in rows] == [0.1, 0.2, 0.4, 0.3]
     assert pick_sheet([loose, wrong_chi, worse, right], fit)[0] == 1  # no known chi: the best compact fit
     assert pick_sheet([loose], fit, target_chi=0)[0] == 0  # nothing better: the only one
-    # a sheet whose CD simplified_sheet measured already is not measured again
+    # a sheet whose CD the refinement measured already is not measured again
     measured = (worse[0], {**worse[1], "cd": 0.05})
     kept, rows = pick_sheet([right, measured], fit, target_chi=1)
     assert kept == 1 and rows[1]["cd"] == 0.05

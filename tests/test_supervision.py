@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from qmdf.fields.settings import SupervisionSettings
 from qmdf.fields.supervision import build_supervision, choose_route
 from qmdf.geometry.inside import (
     mesh_distance,
@@ -126,7 +127,7 @@ def test_routes_and_their_targets_on_the_torus():
     rng = np.random.default_rng(0)
     v, f = np.asarray(torus.vertices), np.asarray(torus.faces)
     for route, normals in (("mesh", nrm), ("oriented_points", nrm), ("raw_points", None)):
-        sup = build_supervision(route, pts, normals, rng, (v, f), volume_samples=20000)
+        sup = build_supervision(route, pts, normals, rng, (v, f), SupervisionSettings(volume_samples=20000))
         known = np.isfinite(sup.sdf)
         exact = torus_sdf(sup.volume[known])
         err = np.abs(sup.sdf[known] - exact)
@@ -142,7 +143,7 @@ def test_routes_and_their_targets_on_the_torus():
         assert np.array_equal(rays, with_mf)
         # on a ray the point's depth is its distance to the surface, as far as the medial ball
         assert np.median(np.abs(-sup.sdf[rays] - np.abs(torus_sdf(sup.volume[rays])))) < 3e-3, route
-    paper = build_supervision("paper", pts, None, rng, None, volume_samples=5000)
+    paper = build_supervision("paper", pts, None, rng, None, SupervisionSettings(volume_samples=5000))
     assert paper.normals is None and not np.isfinite(paper.sdf).any() and not np.isfinite(paper.mf).any()
 
 
@@ -158,7 +159,9 @@ def test_the_samples_by_the_axis_lie_on_both_sides_of_it_alike():
     ratio = {}
     for band in ("across", "inward"):
         rng = np.random.default_rng(0)
-        sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=10000, axis_band=band)
+        sup = build_supervision(
+            "mesh", pts, nrm, rng, (v, f), SupervisionSettings(volume_samples=10000, axis_band=band)
+        )
         offset = np.hypot(sup.volume[:, 0], sup.volume[:, 1]) - TORUS_R
         near = np.hypot(offset, sup.volume[:, 2]) < 0.1 * TORUS_r
         ratio[band] = (near & (offset > 0)).sum() / (near & (offset < 0)).sum()
@@ -189,13 +192,15 @@ def test_degradations_drop_normals_and_noise_keeps_them_with_their_points():
         ((), "mesh"),
         (("+sample.degradations.subsample.n=1500",), "oriented_points"),
         (("+sample.degradations.subsample.n=1500", "+sample.degradations.drop_normals.enabled=true"), "raw_points"),
-        (("train.supervision=paper",), "paper"),
+        (("train.supervision.route=paper",), "paper"),
     ],
 )
 def test_the_route_follows_the_input_and_is_recorded(compose_cfg, tmp_path, extra, route):
     from qmdf.pipeline import Pipeline
 
-    cfg = compose_cfg("input.shape=torus", "pipeline.stages=[sample,train]", "train.volume_samples=5000", *extra)
+    cfg = compose_cfg(
+        "input.shape=torus", "pipeline.stages=[sample,train]", "train.supervision.volume_samples=5000", *extra
+    )
     res = Pipeline(cfg, tmp_path / "run", tmp_path).run()
     train = next(s for s in res.manifest["stages"] if s["name"] == "train")
     assert train["notes"]["supervision"]["route"] == route
@@ -249,9 +254,15 @@ def test_a_sparse_cloud_gets_sign_and_distance_everywhere_from_its_poisson_surfa
         mesh = tm.Trimesh(v, f, process=False)
         assert mesh.is_watertight and mesh.euler_number == 0 and mesh.volume > 0
         assert np.median(np.abs(torus_sdf(v))) < 2e-3
-    proxy = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000)
+    proxy = build_supervision(
+        "oriented_points", pts, nrm, np.random.default_rng(0), settings=SupervisionSettings(volume_samples=20000)
+    )
     points = build_supervision(
-        "oriented_points", pts, nrm, np.random.default_rng(0), volume_samples=20000, proxy="points"
+        "oriented_points",
+        pts,
+        nrm,
+        np.random.default_rng(0),
+        settings=SupervisionSettings(volume_samples=20000, point_surface="points"),
     )
     assert proxy.stats["proxy"] == "poisson" and points.stats["proxy"] == "points"
     assert proxy.stats["proxy_surface"]["solid_euler"] == 0  # the solid torus's, for sheet.match_topology
@@ -274,12 +285,18 @@ def test_the_zero_level_can_follow_the_poisson_surface_instead_of_noisy_points()
     pts, nrm = _samples(torus, 3000)
     noisy = pts + np.random.default_rng(1).normal(scale=0.006, size=pts.shape)
     sup = build_supervision(
-        "oriented_points", noisy, nrm, np.random.default_rng(0), volume_samples=5000, zero_level="proxy"
+        "oriented_points",
+        noisy,
+        nrm,
+        np.random.default_rng(0),
+        settings=SupervisionSettings(volume_samples=5000, zero_level="proxy"),
     )
     assert sup.stats["zero_level"] == "proxy" and sup.surface is sup.ray_origins
     # noise of 0.006: the surface the field is asked to pass through is closer to the true torus (measured 2.6x)
     assert np.median(np.abs(torus_sdf(sup.surface))) < np.median(np.abs(torus_sdf(noisy))) / 2
-    own = build_supervision("oriented_points", noisy, nrm, np.random.default_rng(0), volume_samples=5000)
+    own = build_supervision(
+        "oriented_points", noisy, nrm, np.random.default_rng(0), settings=SupervisionSettings(volume_samples=5000)
+    )
     assert own.surface is noisy and "zero_level" not in own.stats
 
 
@@ -309,10 +326,12 @@ def test_smooth_normals_of_a_faceted_mesh_and_its_medial_rays():
     r_face = inward_medial_radii(pts, nrm, distance, tol=tol)
     assert np.percentile(np.abs(r - TORUS_r), 90) < 2e-3
     assert np.percentile(np.abs(r_face - TORUS_r), 90) > 10 * np.percentile(np.abs(r - TORUS_r), 90)
-    # the face normals stay as an ablation (train.mesh_rays=face), recorded with the route
+    # the face normals stay as an ablation (train.supervision.mesh_rays=face), recorded with the route
     rng = np.random.default_rng(0)
-    face_sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=5000, mesh_rays="face")
-    smooth_sup = build_supervision("mesh", pts, nrm, rng, (v, f), volume_samples=5000)
+    face_sup = build_supervision(
+        "mesh", pts, nrm, rng, (v, f), SupervisionSettings(volume_samples=5000, mesh_rays="face")
+    )
+    smooth_sup = build_supervision("mesh", pts, nrm, rng, (v, f), SupervisionSettings(volume_samples=5000))
     assert face_sup.stats["mesh_rays"] == "face" and smooth_sup.stats["mesh_rays"] == "smooth"
     assert np.median(face_sup.radii) < TORUS_r - 0.02 < np.median(smooth_sup.radii)
 

@@ -17,12 +17,12 @@ TINY = [
     "input.shape=torus",
     "input.shape_resolution=64",
     "pipeline.stages=[sample,train]",
-    "train.surface_batch=512",
-    "train.backbone=mlp",
-    "train.volume_samples=20000",
-    "train.volume_batch=512",
-    "train.backbones.mlp.width=48",
-    "train.backbones.mlp.depth=3",
+    "train.optim.surface_batch=512",
+    "train.model.backbone=mlp",
+    "train.supervision.volume_samples=20000",
+    "train.optim.volume_batch=512",
+    "train.model.backbones.mlp.width=48",
+    "train.model.backbones.mlp.depth=3",
 ]
 
 
@@ -31,7 +31,7 @@ def run(compose_cfg, tmp_path, *more, name="run"):
 
 
 def test_training_fits_the_torus_and_saves_a_loadable_field(compose_cfg, tmp_path):
-    res = run(compose_cfg, tmp_path, "train.steps=300", "train.picture=true")
+    res = run(compose_cfg, tmp_path, "train.optim.steps=300", "train.trainer.picture=true")
     path = res.path("field")
     raw = torch.load(path, weights_only=True)  # plain containers only
     assert raw["format"] == "qmdf-field/1" and raw["backbone"] == "mlp"
@@ -67,7 +67,7 @@ def test_training_fits_the_torus_and_saves_a_loadable_field(compose_cfg, tmp_pat
 
 
 def test_field_queries_are_chunked_consistently(compose_cfg, tmp_path):
-    res = run(compose_cfg, tmp_path, "train.steps=5")
+    res = run(compose_cfg, tmp_path, "train.optim.steps=5")
     f = res.load("field")
     pts = np.random.default_rng(1).uniform(-0.5, 0.5, (5000, 3))
     whole = f.evaluate(pts)["q"]
@@ -76,7 +76,7 @@ def test_field_queries_are_chunked_consistently(compose_cfg, tmp_path):
 
 
 def test_without_medial_field_trains_the_sdf_only(compose_cfg, tmp_path):
-    res = run(compose_cfg, tmp_path, "train.steps=20", "train.medial_field=false")
+    res = run(compose_cfg, tmp_path, "train.optim.steps=20", "train.model.medial_field=false")
     losses = res.load("training")["final_losses"]
     assert "loss/surface" in losses and not any(k.startswith("loss/mf_") for k in losses)
 
@@ -96,7 +96,7 @@ def test_resume_trains_every_step_and_matches_an_uninterrupted_run(compose_cfg, 
             raise RuntimeError("simulated crash")  # a crash (or Ctrl-C) in the middle of training
         return original(self, batch, idx)
 
-    settings = ("train.steps=80", "train.checkpoint_every=20")
+    settings = ("train.optim.steps=80", "train.trainer.checkpoint_every=20")
     module_mod.FieldModule.training_step = interrupt_at_30
     try:
         with pytest.raises(RuntimeError, match="simulated crash"):
@@ -130,17 +130,21 @@ def test_resume_trains_every_step_and_matches_an_uninterrupted_run(compose_cfg, 
 
 def test_divergence_stops_with_a_clear_message(compose_cfg, tmp_path):
     with pytest.raises(QmdfError, match="training diverged: the loss became (nan|inf)"):
-        run(compose_cfg, tmp_path, "train.steps=50", "train.lr=1e30", "train.lr_final=1e29")
+        run(compose_cfg, tmp_path, "train.optim.steps=50", "train.optim.lr=1e30", "train.optim.lr_final=1e29")
 
 
 def test_bad_train_settings_are_listed(compose_cfg):
     from qmdf.config import validate
 
     problems = validate(
-        compose_cfg("train.backbone=hashgrid", "+train.losses.smooth.weight=1", "train.losses.surface.weight=-1")
+        compose_cfg(
+            "train.model.backbone=hashgrid",
+            "+train.optim.losses.smooth.weight=1",
+            "train.optim.losses.surface.weight=-1",
+        )
     )
     keys = sorted(p.key for p in problems)
-    assert keys == ["train.backbone", "train.losses.smooth", "train.losses.surface.weight"]
+    assert keys == ["train.model.backbone", "train.optim.losses.smooth", "train.optim.losses.surface.weight"]
 
 
 def test_grid_backbone_is_twice_differentiable_and_smooth_across_cells():
@@ -168,11 +172,11 @@ def test_grid_backbone_trains_through_the_pipeline(compose_cfg, tmp_path):
     res = run(
         compose_cfg,
         tmp_path,
-        "train.steps=150",
-        "train.backbone=grid",
-        "train.backbones.grid.width=32",
-        "train.backbones.grid.finest_resolution=32",
-        "train.picture=false",
+        "train.optim.steps=150",
+        "train.model.backbone=grid",
+        "train.model.backbones.grid.width=32",
+        "train.model.backbones.grid.finest_resolution=32",
+        "train.trainer.picture=false",
     )
     assert res.load("field").meta["backbone"] == "grid"
     hist = res.load("training")["history"]
@@ -181,13 +185,15 @@ def test_grid_backbone_trains_through_the_pipeline(compose_cfg, tmp_path):
 
 @pytest.mark.slow
 def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path):
-    """A plate 0.03 thick: with its mesh's outward normals (train.losses.normal) the learned inside is the plate,
+    """A plate 0.03 thick: with its mesh's outward normals (train.optim.losses.normal) the learned inside is the plate,
     thin; from the points alone with the paper's losses it need not be (ABC 00000329 came out ten times thicker)."""
     import trimesh
 
     path = tmp_path / "plate.ply"
     trimesh.creation.box(extents=(1.0, 0.4, 0.03)).subdivide().export(path)
-    res = run(compose_cfg, tmp_path, f"input.path={path}", "train.steps=300", "train.losses.normal.weight=100")
+    res = run(
+        compose_cfg, tmp_path, f"input.path={path}", "train.optim.steps=300", "train.optim.losses.normal.weight=100"
+    )
     field = res.load("field")
     rng = np.random.default_rng(0)
     xy = rng.uniform([-0.4, -0.15], [0.4, 0.15], (2000, 2))
@@ -201,7 +207,12 @@ def test_normal_loss_gets_a_thin_plate_right(compose_cfg, tmp_path):
     pts = tmp_path / "plate.xyz"
     np.savetxt(pts, res.load("points").points)
     cloud = run(
-        compose_cfg, tmp_path, f"input.path={pts}", "train.steps=300", "train.losses.normal.weight=100", name="cloud"
+        compose_cfg,
+        tmp_path,
+        f"input.path={pts}",
+        "train.optim.steps=300",
+        "train.optim.losses.normal.weight=100",
+        name="cloud",
     )
     assert cloud.load("training")["supervision"]["route"] == "raw_points"
     # WNNC orients the plate's two sides apart (propagation turned a third of them over, and the Poisson surface
@@ -219,7 +230,7 @@ def test_same_seed_same_field(compose_cfg, tmp_path):
     """The initial weights are seeded too: two trainings with one seed give the same field, another seed another."""
     fields = {}
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
-        res = run(compose_cfg, tmp_path, "train.steps=5", "cache.enabled=false", f"seed={seed}", name=name)
+        res = run(compose_cfg, tmp_path, "train.optim.steps=5", "cache.enabled=false", f"seed={seed}", name=name)
         fields[name] = torch.load(res.path("field"), weights_only=True)["state_dict"]
     diff = {k: max((fields[k][p] - fields["a"][p]).abs().max().item() for p in fields["a"]) for k in "bc"}
     assert diff["b"] == 0.0 and diff["c"] > 1e-3, diff
@@ -252,7 +263,7 @@ def test_a_signal_saves_a_checkpoint_and_the_rerun_ends_with_the_uninterrupted_f
             os.kill(os.getpid(), signum)
         return out
 
-    settings = ("train.steps=80", "train.checkpoint_every=50")
+    settings = ("train.optim.steps=80", "train.trainer.checkpoint_every=50")
     module_mod.FieldModule.optimizer_step = signal_after_the_update
     try:
         with pytest.raises(Interrupted, match="at training step 31 of 80: checkpoint saved") as info:
@@ -279,7 +290,7 @@ def test_another_backbones_settings_do_not_retrain(compose_cfg, tmp_path):
     base = ["input.shape=torus", "pipeline.stages=[sample,train]"]
     runs = [
         Pipeline(compose_cfg(*base, *extra), tmp_path / f"run{i}", tmp_path).run()
-        for i, extra in enumerate(([], ["train.backbones.grid.levels=4"], ["train.backbones.mlp.width=16"]))
+        for i, extra in enumerate(([], ["train.model.backbones.grid.levels=4"], ["train.model.backbones.mlp.width=16"]))
     ]
     status = [[s["status"] for s in r.manifest["stages"] if s["name"] == "train"][0] for r in runs]
     assert status == ["ran", "cached", "ran"]
@@ -389,7 +400,9 @@ def test_a_clouds_poisson_surface_is_handed_on_as_the_data_the_radii_are_measure
     cloud_run = [o for o in TINY if not o.startswith("input.shape")] + [f"input.path={tmp_path / 'torus.xyz'}"]
     runs = {
         flag: Pipeline(
-            compose_cfg(*cloud_run, "train.steps=5", f"train.point_surface_as_data={flag}"), tmp_path / flag, tmp_path
+            compose_cfg(*cloud_run, "train.optim.steps=5", f"train.supervision.point_surface_as_data={flag}"),
+            tmp_path / flag,
+            tmp_path,
         ).run()
         for flag in ("true", "false")
     }
@@ -407,3 +420,23 @@ def test_a_clouds_poisson_surface_is_handed_on_as_the_data_the_radii_are_measure
     assert "point_surface" not in runs["false"].artifacts
     mesh, points = radius_data(runs["false"].load("input_info"), None, lambda: runs["false"].load("points"))
     assert mesh is None and len(points) == 3000
+
+
+def test_lightnings_logger_is_named_by_target(tmp_path, compose_cfg):
+    """train.trainer.logger: any Lightning logger class by ``_target_``, its other keys its arguments; a wrong
+    target stops with its key path, at start where the config can tell and at the stage otherwise."""
+    from lightning.pytorch import loggers
+
+    from qmdf.config import validate
+    from qmdf.errors import QmdfError
+    from qmdf.stages.training import lightning_logger
+
+    csv, on_end = lightning_logger({"_target_": "lightning.pytorch.loggers.CSVLogger", "name": "logs"}, tmp_path)
+    assert isinstance(csv, loggers.CSVLogger) and csv.name == "logs" and on_end is None
+    assert csv.save_dir == str(tmp_path)
+    with pytest.raises(
+        QmdfError, match="train.trainer.logger._target_: cannot import 'lightning.pytorch.loggers.Nope'"
+    ):
+        lightning_logger({"_target_": "lightning.pytorch.loggers.Nope"}, tmp_path)
+    (problem,) = validate(compose_cfg("train.trainer.logger._target_=csv"))
+    assert problem.key == "train.trainer.logger._target_" and "logger class" in problem.message

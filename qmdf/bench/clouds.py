@@ -3,9 +3,9 @@
 From every mesh in ``../shared/data`` (organic, cad, defects) and the embedded teacup and cyclide, seeded clouds
 are drawn with the degradations the pipeline uses (``qmdf.geometry.degradations``): 20k clean points; 2,000 and
 1,000; 20k with 0.5% and 1% Gaussian noise (of the bounding-box diagonal); 20k with three missing balls; a
-density ramp. Each is oriented by every method of ``train.orientation`` and scored against the source's outward
-normals: the share within 90 degrees (orientation accuracy), the median angle, the share the cloud's own winding
-number contradicts, and the seconds. The whole pipeline on such clouds is ``bench models`` with
+density ramp. Each is oriented by every method of ``train.supervision.orientation`` and scored against the
+source's outward normals: the share within 90 degrees (orientation accuracy), the median angle, the share the
+cloud's own winding number contradicts, and the seconds. The whole pipeline on such clouds is ``bench models`` with
 ``+sample.degradations...`` overrides; this suite isolates the step that decides inside from outside.
 """
 

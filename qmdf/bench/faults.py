@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-TRAIN = ["+debug=fast", "pipeline.stages=[sample,train]", "train.steps=400", "train.checkpoint_every=25"]
+TRAIN = ["+debug=fast", "pipeline.stages=[sample,train]", "train.optim.steps=400", "train.trainer.checkpoint_every=25"]
 SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGKILL)
 
 

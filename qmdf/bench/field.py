@@ -36,18 +36,23 @@ class Case:
 
 def default_cases(shapes, backbones) -> list[Case]:
     cases = [Case(s, s, b) for s in shapes for b in backbones]
-    cases.append(Case("torus, paper route", "torus", "mlp", ["train.supervision=paper"]))
+    cases.append(Case("torus, paper route", "torus", "mlp", ["train.supervision.route=paper"]))
     cases.append(
         Case(
             "torus, paper, no pinning",
             "torus",
             "mlp",
-            ["train.supervision=paper", "train.paper_losses.mf_maximal.weight=0"],
+            ["train.supervision.route=paper", "train.optim.paper_losses.mf_maximal.weight=0"],
         )
     )
     cases.append(Case("cut cyclide, MF", "cyclide", backbones[0], ["+experiment=cut_cyclide"]))
     cases.append(
-        Case("cut cyclide, w/o MF", "cyclide", backbones[0], ["+experiment=cut_cyclide", "train.medial_field=false"])
+        Case(
+            "cut cyclide, w/o MF",
+            "cyclide",
+            backbones[0],
+            ["+experiment=cut_cyclide", "train.model.medial_field=false"],
+        )
     )
     return cases
 
@@ -165,7 +170,7 @@ def run_case(case: Case, out: Path, n_points: int, overrides: list[str], timeout
         "input.shape_resolution=256",
         f"sample.n_points={n_points}",
         "pipeline.stages=[sample,train]",
-        f"train.backbone={case.backbone}",
+        f"train.model.backbone={case.backbone}",
         f"hydra.run.dir={run_dir}",
         *overrides,
         *case.overrides,
@@ -218,7 +223,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--only-main", action="store_true", help="skip the pinning ablation and the cut cyclide")
     ap.add_argument("--points", type=int, default=20_000, help="surface points sampled from each shape")
     ap.add_argument("--timeout", type=float, default=1800)
-    ap.add_argument("overrides", nargs="*", help="config overrides for every run (e.g. train.steps=3000)")
+    ap.add_argument("overrides", nargs="*", help="config overrides for every run (e.g. train.optim.steps=3000)")
     ap.add_argument("--reuse", action="store_true", help="reuse cached stage results (timings then mean nothing)")
     args = ap.parse_args(argv)
     if not args.reuse:

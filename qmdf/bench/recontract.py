@@ -46,7 +46,8 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     from qmdf.schema import build, check_section
     from qmdf.medial.contraction import contract, surface_mesh
     from qmdf.medial.radii import membrane_to_mat
-    from qmdf.stages.contract import ContractConfig, contraction_params
+    from qmdf.stages.contract import ContractConfig
+    from qmdf.stages.sheet import DEFAULT_STEPS
 
     bad = [o for o in overrides if not o.startswith("contract.") or "=" not in o]
     if bad:
@@ -76,15 +77,14 @@ def recontract(run_dir: Path, out_dir: Path, overrides: list[str]) -> Path:
     covering = MESH.load(run_dir / sources["covering"])
     features = None if sources["feature_points"] is None else POINTS.load(run_dir / sources["feature_points"]).points
     faces = np.asarray(covering.faces)
-    x, history, vol0, _ = contract(
-        field, np.asarray(covering.vertices), faces, None, features=features, **contraction_params(cfg)
-    )
-    # the membrane as the run's export made it: its radii, centred on the input's axis when export centres
-    export = config.get("export", {})
-    radius, centre = export.get("radius", "data"), bool(export.get("centre", True))
+    x, history, vol0, _ = contract(field, np.asarray(covering.vertices), faces, None, features=features, settings=cfg)
+    # the membrane as the run's export made it, with the sheet's settings: its radii, centred on the input's axis
+    # where the sheet centres, covered where it covers
+    sheet = config.get("sheet", {})
+    radius, steps = sheet.get("radius", "data"), sheet.get("steps", list(DEFAULT_STEPS))
     mesh, points = _input_data(run_dir, stages, last["index"]) if radius == "data" else (None, None)
-    mat = membrane_to_mat(surface_mesh(x, faces), field, radius, mesh, points, centre=centre)
-    budget = int(export.get("coverage_vertices", 1000))
+    mat = membrane_to_mat(surface_mesh(x, faces), field, radius, mesh, points, centre="centre" in steps)
+    budget = int(((sheet.get("step") or {}).get("coverage") or {}).get("vertices", 1000)) if "coverage" in steps else 0
     if radius == "data" and budget:  # export's coverage of a membrane MAT
         from qmdf.medial.coverage import cover_mat
         from qmdf.stages.inputs import is_input_mesh, surface_balls_of

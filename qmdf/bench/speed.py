@@ -60,8 +60,8 @@ def floors(run_dir: Path) -> dict[str, tuple[float, str]]:
         out["sample"] = (_timed(lambda: get_shape(inp["shape"]).mesh(inp["shape_resolution"])), "make the shape's mesh")
     if "field" in run.artifacts and "training" in run.artifacts:
         out["train"] = (
-            _train_floor(run, cfg["train"]),
-            f"{cfg['train']['steps']} plain torch steps, same net and batch",
+            _train_floor(run, cfg["train"]["optim"]),
+            f"{cfg['train']['optim']['steps']} plain torch steps, same net and batch",
         )
     res = int(cfg["cover"]["resolution"])
     out["cover"] = (_marching_cubes_floor(res), f"one marching-cubes pass over {res}^3")
@@ -90,7 +90,7 @@ def floors(run_dir: Path) -> dict[str, tuple[float, str]]:
     return out
 
 
-def _train_floor(run, train_cfg: dict) -> float:
+def _train_floor(run, optim: dict) -> float:
     import torch
 
     from qmdf.fields.module import build_net
@@ -98,11 +98,11 @@ def _train_floor(run, train_cfg: dict) -> float:
     meta = torch.load(run.path("field"), map_location="cpu", weights_only=True)
     net = build_net(meta["backbone"], meta["backbone_params"])
     opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
-    surface = int(train_cfg["surface_batch"])
-    batch = surface + int(train_cfg["volume_batch"])
+    surface = int(optim["surface_batch"])
+    batch = surface + int(optim["volume_batch"])
     x = torch.rand(batch, 3) - 0.5
     target = torch.zeros(batch)
-    steps, probe = int(train_cfg["steps"]), 50
+    steps, probe = int(optim["steps"]), 50
 
     def loop():  # the step the train stage takes (mf of the volume rows), without its sampling and bookkeeping
         for _ in range(probe):

@@ -1,4 +1,4 @@
-"""Backbones: coordinates (N, 3) in the unit box -> features (N, out_dim). Swappable by ``train.backbone``.
+"""Backbones: coordinates (N, 3) in the unit box -> features (N, out_dim). Swappable by ``train.model.backbone``.
 
 Each one must be twice differentiable (the eikonal and orthogonality terms differentiate its gradient).
 """

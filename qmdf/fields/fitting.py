@@ -91,7 +91,7 @@ def fit(
         stop.received = stop.received or signal.SIGINT
     except Diverged as exc:
         keep = f"; the last good checkpoint is {last}" if last.exists() else ""
-        raise QmdfError(f"training diverged: {exc}{keep}. Lower train.lr or check the input") from None
+        raise QmdfError(f"training diverged: {exc}{keep}. Lower train.optim.lr or check the input") from None
     finally:
         for lg in trainer.loggers:
             lg.finalize("success")

@@ -1,4 +1,4 @@
-"""Training losses as plugins, each with its weight in config (``train.losses.NAME.weight``).
+"""Training losses as plugins, each with its weight in config (``train.optim.losses.NAME.weight``).
 
 SDF from raw points, no normals: ``surface`` (|sdf| on the points), ``eikonal`` (|grad sdf| = 1 over the
 volume too, so |sdf| is metric deep inside, where the medial terms read it), ``offsurface`` (pushes
@@ -313,10 +313,10 @@ SUPERVISED_WEIGHTS = {
 
 
 def default_losses() -> dict:
-    """train.losses: the supervised routes' terms and weights."""
+    """train.optim.losses: the supervised routes' terms and weights."""
     return {name: {"weight": w} for name, w in SUPERVISED_WEIGHTS.items()}
 
 
 def paper_losses() -> dict:
-    """train.paper_losses: the paper route's terms, with their configs' default weights."""
+    """train.optim.paper_losses: the paper route's terms, with their configs' default weights."""
     return {name: {"weight": LOSSES.get(name).config().weight} for name in PAPER_TERMS}

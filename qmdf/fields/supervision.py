@@ -44,6 +44,7 @@ from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.metrics import solid_euler
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
+from qmdf.fields.settings import SupervisionSettings
 
 
 ROUTES = ("mesh", "oriented_points", "raw_points", "paper")
@@ -73,10 +74,10 @@ def choose_route(requested: str, mesh_available: bool, has_normals: bool) -> tup
             from qmdf.errors import QmdfError
 
             raise QmdfError(
-                "train.supervision=mesh needs a mesh input without degradations (a degraded mesh is a "
+                "train.supervision.route=mesh needs a mesh input without degradations (a degraded mesh is a "
                 "simulated point cloud); use auto, oriented_points, raw_points or paper"
             )
-        return requested, "set by train.supervision"
+        return requested, "set by train.supervision.route"
     if mesh_available:
         return "mesh", "the input is a mesh"
     if has_normals:
@@ -90,21 +91,15 @@ def build_supervision(
     normals: np.ndarray | None,
     rng: np.random.Generator,
     mesh: tuple[np.ndarray, np.ndarray] | None = None,
-    volume_samples: int = 200_000,
-    uniform_fraction: float = 0.25,
-    ray_fraction: float = 0.4,
+    settings: SupervisionSettings = SupervisionSettings(),
     box: float = 0.6,
-    proxy: str = "poisson",
-    poisson_depth: int = 8,
-    poisson_point_weight: float = 4.0,
-    poisson_samples_per_node: tuple[float, float] = (0.25, 1.5),
     proxy_rays: int = 50_000,
-    zero_level: str = "input",
-    mesh_rays: str = "smooth",
-    axis_band: str = "across",
-    orientation: str = "wnnc",
 ) -> Supervision:
-    """The training targets of ``route`` (see the module doc). Points are in the unit box."""
+    """The training targets of ``route`` (see the module doc) under ``settings`` (``train.supervision``'s; its
+    ``route`` is the caller's to resolve: ``choose_route``). Points are in the unit box."""
+    s = settings
+    volume_samples, uniform_fraction, ray_fraction = s.volume_samples, s.uniform_fraction, s.ray_fraction
+    zero_level, mesh_rays, axis_band = s.zero_level, s.mesh_rays, s.axis_band
     stats: dict = {"route": route}
     origins, ray_normals, proxy_mesh = None, None, None  # rays start at the points, along their normals
     if route == "mesh":
@@ -119,18 +114,18 @@ def build_supervision(
         radii = inward_medial_radii(points, ray_normals, lambda q: distance(q)[0], tol=tol, iterations=16)
     elif route in ("oriented_points", "raw_points"):
         if route == "raw_points" or normals is None:
-            normals, residual, info = estimate_oriented_normals(points, method=orientation)
+            normals, residual, info = estimate_oriented_normals(points, method=s.orientation)
         else:
             _, residual = pca_normals(points)
             normals, info = orient_by_winding(points, _unit(normals))
         stats["orientation"] = info
         noise = float(np.median(residual))
         stats["noise_level"] = noise
-        if proxy == "poisson":
+        if s.point_surface == "poisson":
             octree: dict = {}
-            fine, coarse = poisson_samples_per_node
+            p = s.poisson
             proxy_mesh = poisson_surface(
-                points, normals, poisson_depth, poisson_point_weight, fine, coarse, info=octree
+                points, normals, p.depth, p.point_weight, p.samples_per_node, p.coarse_samples_per_node, info=octree
             )
             stats["proxy"] = (
                 "poisson"

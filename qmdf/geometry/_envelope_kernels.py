@@ -83,10 +83,13 @@ def _prim_sdf(px, py, pz, j, prims, kind, c, r):
 
 
 @njit(cache=True, parallel=True)
-def union_min(p, best, stop, arg, order, lo, hi, rho_max, left, right, start, count, prims, kind, c, r, anchor, rho):
+def union_min(p, best, stop, arg, tree, shapes):
     """best[i] = min(best[i], min over primitives of their sdf at p[i]), arg[i] its primitive (kept where
     nothing went below best). Nearest nodes first, pruned by their lower bound; a point stops as soon as its
-    best is below stop[i] (its sign is then all the caller needs)."""
+    best is below stop[i] (its sign is then all the caller needs). ``tree``: the BVH's (order, lo, hi, rho_max,
+    left, right, start, count); ``shapes``: the primitives' (prims, kind, c, r, anchor, rho)."""
+    order, lo, hi, rho_max, left, right, start, count = tree
+    prims, kind, c, r, anchor, rho = shapes
     for i in prange(p.shape[0]):
         stack = np.empty(64, np.int64)  # depth-first: at most two nodes per level of the tree
         px, py, pz = p[i, 0], p[i, 1], p[i, 2]

@@ -181,7 +181,9 @@ class EnvelopeUnion:
         else:
             best = np.full(len(points), np.nextafter(float(band), np.inf))
             stop = np.full(len(points), -float(band))
-        union_min(points, best, stop, arg, *self._bvh, self.prims, self.kind, self.c, self.r, self.anchor, self.rho)
+        union_min(
+            points, best, stop, arg, tuple(self._bvh), (self.prims, self.kind, self.c, self.r, self.anchor, self.rho)
+        )
         return (best, arg) if return_argmin else best
 
     def snap(self, points: np.ndarray, argmin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -201,28 +201,50 @@ def boundary_curves(edges: np.ndarray) -> list[tuple[np.ndarray, bool]]:
     return curves
 
 
-def boundary_smoothness(vertices: np.ndarray, edges: np.ndarray) -> float:
+def boundary_smoothness(vertices: np.ndarray, edges: np.ndarray, step: float | None = None) -> float:
     """C_avg = (1/L) sum_i l_i theta_i over the boundary curves (paper Sec. 5.1, its discrete formula as
-    written; l_i is the mean of the two incident edge lengths, theta_i the turning angle, L the total length)."""
+    written; l_i is the mean of the two incident edge lengths, theta_i the turning angle, L the total length).
+    With ``step``, each curve resampled first at that arc length (its ends and a closed curve's start kept): the
+    formula rewards subdividing a jagged boundary, a fixed step does not (a circle of radius 0.3 at 0.01: 0.033)."""
     v = np.asarray(vertices, np.float64)
     total_len, total = 0.0, 0.0
     for idx, closed in boundary_curves(edges):
         pts = v[idx]
-        seg = np.linalg.norm(np.diff(np.vstack([pts, pts[:1]]) if closed else pts, axis=0), axis=1)
-        total_len += seg.sum()
-        if closed:
-            prev, cur, nxt = np.roll(pts, 1, 0), pts, np.roll(pts, -1, 0)
-            l_prev, l_next = np.roll(seg, 1), seg
-        else:
-            prev, cur, nxt = pts[:-2], pts[1:-1], pts[2:]
-            l_prev, l_next = seg[:-1], seg[1:]
-        if len(cur) == 0:
-            continue
-        a, b = prev - cur, nxt - cur
-        cos = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
-        theta = np.pi - np.arccos(np.clip(cos, -1.0, 1.0))
-        total += float(((l_prev + l_next) / 2 * theta).sum())
+        if step:
+            pts = _resampled(pts, closed, step)
+        length, turning = _turning(pts, closed)
+        total_len += length
+        total += turning
     return total / total_len if total_len > 0 else 0.0
+
+
+def _turning(pts: np.ndarray, closed: bool) -> tuple[float, float]:
+    """A polyline's length and sum_i l_i theta_i over its inner vertices (every vertex of a closed one)."""
+    seg = np.linalg.norm(np.diff(np.vstack([pts, pts[:1]]) if closed else pts, axis=0), axis=1)
+    if closed:
+        prev, cur, nxt = np.roll(pts, 1, 0), pts, np.roll(pts, -1, 0)
+        l_prev, l_next = np.roll(seg, 1), seg
+    else:
+        prev, cur, nxt = pts[:-2], pts[1:-1], pts[2:]
+        l_prev, l_next = seg[:-1], seg[1:]
+    if len(cur) == 0:
+        return float(seg.sum()), 0.0
+    a, b = prev - cur, nxt - cur
+    cos = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+    theta = np.pi - np.arccos(np.clip(cos, -1.0, 1.0))
+    return float(seg.sum()), float(((l_prev + l_next) / 2 * theta).sum())
+
+
+def _resampled(pts: np.ndarray, closed: bool, step: float) -> np.ndarray:
+    """Points every ``step`` of arc length along a polyline (a closed one's back to its start), its ends kept."""
+    path = np.vstack([pts, pts[:1]]) if closed else pts
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    if s[-1] <= 0:
+        return pts[:1]
+    n = max(int(np.ceil(s[-1] / step)), 3 if closed else 1)
+    t = np.linspace(0.0, s[-1], n + 1)
+    out = np.column_stack([np.interp(t, s, path[:, k]) for k in range(3)])
+    return out[:-1] if closed else out
 
 
 def radius_stats(radii: np.ndarray) -> dict:

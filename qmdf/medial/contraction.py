@@ -22,9 +22,63 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from dataclasses import dataclass
+
 from qmdf.errors import QmdfError
 from qmdf.geometry.rows import unique_rows
 from qmdf.geometry.triangles import face_areas
+from qmdf.schema import param
+
+
+@dataclass
+class ContractionSettings:
+    """``contract``'s settings: the ``contract`` stage's config (``contract.*``), one source for both."""
+
+    iterations: int = param(3000, ge=1, doc="optimisation steps (paper: about 3k)")
+    lr: float = param(5e-4, gt=0, doc="step length in the unit box (DCUDF: 5e-4), cosine-decayed")
+    lr_final: float = param(1e-6, gt=0)
+    lambda_volume: float = param(1.0, ge=0, doc="weight of the enclosed volume (per initial area)")
+    lambda_laplacian: float = param(100.0, ge=0, doc="weight of the area-weighted Laplacian smoothness")
+    lattice: float = param(
+        1e-3,
+        ge=0,
+        doc="spacing of the lazily evaluated q lattice the vertices read (its error "
+        "is below half of it); 0: evaluate the field at every vertex in every iteration",
+    )
+    feature_weight: float = param(
+        10.0,
+        ge=0,
+        doc="pull of each feature point on its nearest vertex, where a "
+        "feature_detect stage ran before (0: the paper's energy)",
+    )
+    feature_reach: float = param(
+        0.02,
+        gt=0,
+        doc="feature points farther than this from the covering pull nothing "
+        "(the covering never reached them; unit box)",
+    )
+    zip_weight: float = param(
+        1000.0,
+        ge=0,
+        doc="near the feature points, pull of each vertex toward the facing "
+        "layer within zip_reach: a local volume term that closes the tips (0: the paper's energy; "
+        "acts only where a feature_detect stage ran before)",
+    )
+    zip_reach: float = param(
+        0.02,
+        gt=0,
+        doc="how far the facing layer may be (unit box; 0.01 folded 4 to 13 points fewer "
+        "of the sharp-edge samples on the procedural and well-fitted CAD shapes)",
+    )
+    zip_near: float = param(0.05, gt=0, doc="vertices within this of a feature point are zipped (unit box)")
+    outside_weight: float = param(
+        2.0,
+        ge=0,
+        doc="the vertices minimise q + outside_weight * max(sdf, 0): 2 continues "
+        "q = mf - |sdf| as mf + sdf outside the shape, so q rises there instead of falling "
+        "(0: the paper's q everywhere, which let the vertices of thin parts leave the shape)",
+    )
+    log_every: int = param(25, ge=1)
 
 
 class InsideQ:
@@ -277,23 +331,11 @@ def contract(
     tets: np.ndarray | None = None,
     *,
     features: np.ndarray | None = None,
-    iterations: int = 3000,
-    lr: float = 5e-4,
-    lr_final: float = 1e-6,
-    lambda_volume: float = 1.0,
-    lambda_laplacian: float = 100.0,
-    lattice: float = 1e-3,
-    feature_weight: float = 10.0,
-    feature_reach: float = 0.02,
-    zip_weight: float = 1000.0,
-    zip_reach: float = 0.02,
-    zip_near: float = 0.05,
-    outside_weight: float = 2.0,
-    log_every: int = 25,
+    settings: ContractionSettings = ContractionSettings(),
     on_iteration=None,
 ):
     """The contracted vertices, the per-iteration log of the energy terms and the volume, the initial volume,
-    and how many field evaluations it took (see the module doc for the energy; ``contract``'s stage config
+    and how many field evaluations it took (see the module doc for the energy; ``ContractionSettings``
     documents each weight). ``features``: feature points whose nearest vertices are pulled; ``on_iteration(done,
     total)`` is called after every iteration. Gradients are closed-form (no autograd): the volume's per triangle
     (or tet), the Laplacian energy's 2/N L^T W L x."""
@@ -301,79 +343,87 @@ def contract(
     from qmdf.fields.lattice import LatticeQ
     from qmdf.geometry.tets import signed_volumes
 
+    c = settings
     x = np.array(vertices, np.float64)
-    if outside_weight > 0:
-        field = InsideQ(field, outside_weight)
+    if c.outside_weight > 0:
+        field = InsideQ(field, c.outside_weight)
     surf = np.unique(faces)
-    all_surface = len(surf) == len(x)  # a surface covering: no inner (tet) vertices to leave out of q
     if tets is not None and signed_volumes(vertices, tets).sum() < 0:
         tets = tets[:, [0, 2, 1, 3]]
     L = umbrella(len(x), faces)
     LT = L.T.tocsr()
-    lap_coef = lambda_laplacian * (2.0 / len(x))
+    lap_coef = c.lambda_laplacian * (2.0 / len(x))
     lap, weighted = np.empty_like(x), np.empty_like(x)
     area0 = float(face_areas(x, faces).sum())
     w = area_weights(x, faces)
     margin = 0.05
-    q_lattice = LatticeQ(field, lattice, x.min(0) - margin, x.max(0) + margin) if lattice > 0 else None
+    q_lattice = LatticeQ(field, c.lattice, x.min(0) - margin, x.max(0) + margin) if c.lattice > 0 else None
+    q_of = _QGradient(field, q_lattice, surf, len(x))
     enclosed = EnclosedVolume(len(x), faces, tets)
-    exact_evaluations = 0
     m = np.zeros_like(x)
     s = np.zeros(len(x))
     history = []
     has_features = features is not None and len(features) > 0
-    pull = FeaturePull(features, surf, feature_reach) if has_features and feature_weight > 0 else None
-    feature_distance = None
-    zipper = LayerZip(faces, surf, features, zip_near, zip_reach) if has_features and zip_weight > 0 else None
+    pull = FeaturePull(features, surf, c.feature_reach) if has_features and c.feature_weight > 0 else None
+    zipper = LayerZip(faces, surf, features, c.zip_near, c.zip_reach) if has_features and c.zip_weight > 0 else None
+    extra: dict = {}
     vol0 = enclosed(x)[0]
-    for it in range(iterations):
-        at = x if all_surface else x[surf]
-        if q_lattice is not None:
-            q, qg = q_lattice(at)
-        else:
-            out = field.evaluate(at, grad=True)
-            q, qg = out["q"], out["q_grad"]
-            exact_evaluations += len(surf)
-        if all_surface:
-            g = np.asarray(qg, np.float64) / len(surf)
-        else:
-            g = np.zeros_like(x)
-            g[surf] = qg / len(surf)
+    for it in range(c.iterations):
+        q, g = q_of(x)
         vol, vol_grad = enclosed(x)
         # max(Vol, 0): the signed volume has no minimum at zero; once the layers meet it would keep pushing
         # them through each other (measured: the box's covering diverged to -2e3 without the clamp)
         if vol > 0:
-            g += lambda_volume / area0 * vol_grad
+            g += c.lambda_volume / area0 * vol_grad
         _add_smoothness_gradient(
             L.indptr, L.indices, L.data, LT.indptr, LT.indices, LT.data, x, w, lap_coef, g, lap, weighted
         )
         if pull is not None:
-            feature_distance = pull(x, it, g, feature_weight / len(surf))
-        zipped = zipper(x, it, g, zip_weight / len(surf)) if zipper is not None else None
-        step = lr_final + (lr - lr_final) * 0.5 * (1 + math.cos(math.pi * it / iterations))
+            extra["feature_distance"] = pull(x, it, g, c.feature_weight / len(surf))
+            extra["pulling_features"] = int(pull.active.sum())
+        if zipper is not None:
+            extra["zipped_vertices"] = zipper(x, it, g, c.zip_weight / len(surf))
+        step = c.lr_final + (c.lr - c.lr_final) * 0.5 * (1 + math.cos(math.pi * it / c.iterations))
         _vector_adam(x, g, m, s, step, it + 1, 0.9, 0.999)
         if on_iteration is not None:  # progress for the caller (the stage's heartbeat)
-            on_iteration(it + 1, iterations)
-        if it % log_every == 0 or it == iterations - 1:
+            on_iteration(it + 1, c.iterations)
+        if it % c.log_every == 0 or it == c.iterations - 1:
             e_lap = float((weighted * lap).sum(1).mean())
-            geom = lambda_volume * max(vol, 0.0) / area0 + lambda_laplacian * e_lap
-            rec = {
-                "iteration": it,
-                "q_mean": float(q.mean()),
-                "volume": vol,
-                "laplacian": e_lap,
-                "energy": float(q.mean()) + geom,
-                "lr": step,
-            }
-            if pull is not None:
-                rec["feature_distance"], rec["pulling_features"] = feature_distance, int(pull.active.sum())
-            if zipper is not None:
-                rec["zipped_vertices"] = zipped
-            history.append(rec)
-            if not np.isfinite(rec["energy"]):
+            geom = c.lambda_volume * max(vol, 0.0) / area0 + c.lambda_laplacian * e_lap
+            energy = float(q.mean()) + geom
+            history.append(
+                {"iteration": it, "q_mean": float(q.mean()), "volume": vol, "laplacian": e_lap, "energy": energy}
+                | {"lr": step, **extra}
+            )
+            if not np.isfinite(energy):
                 raise QmdfError(f"contraction diverged at iteration {it}; lower contract.lr")
-    evaluations = q_lattice.evaluated if q_lattice is not None else exact_evaluations
+    evaluations = q_lattice.evaluated if q_lattice is not None else q_of.evaluations
     return x, history, vol0, evaluations
+
+
+class _QGradient:
+    """q at the covering's surface vertices and its gradient, per vertex, as the energy's mean q wants it: from the
+    lazily evaluated lattice, else from the field at every vertex (counted in ``evaluations``); inner (tet)
+    vertices get none."""
+
+    def __init__(self, field, lattice, surf: np.ndarray, n: int):
+        self.field, self.lattice, self.surf, self.n = field, lattice, surf, n
+        self.all_surface = len(surf) == n  # a surface covering: no inner (tet) vertices to leave out of q
+        self.evaluations = 0
+
+    def __call__(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        at = x if self.all_surface else x[self.surf]
+        if self.lattice is not None:
+            q, qg = self.lattice(at)
+        else:
+            out = self.field.evaluate(at, grad=True)
+            q, qg = out["q"], out["q_grad"]
+            self.evaluations += len(self.surf)
+        if self.all_surface:
+            return q, np.asarray(qg, np.float64) / len(self.surf)
+        g = np.zeros_like(x)
+        g[self.surf] = qg / len(self.surf)
+        return q, g
 
 
 def surface_mesh(x: np.ndarray, faces: np.ndarray):

@@ -20,6 +20,36 @@ from typing import Callable
 import numpy as np
 
 from qmdf.geometry.triangles import barycentric
+from qmdf.schema import param
+
+#: A surface sample farther than this outside the envelope is uncovered (unit box); ``sheet.tolerance``'s default.
+TOLERANCE = 1e-3
+
+
+@dataclass
+class CoverageSettings:
+    """The sheet's ``coverage`` step (``sheet.step.coverage``) and ``refine_coverage``'s defaults."""
+
+    vertices: int = param(
+        1000,
+        ge=0,
+        doc="up to this many vertices added where the envelope falls short of the surface by more than "
+        "sheet.tolerance, each the data's medial ball behind the sample farthest out; a second simplification, "
+        "those fixed, brings the sheet back to sheet.target_vertices (0: none)",
+    )
+    spacing: float = param(
+        0.01, gt=0, doc="per round, no two added balls' samples closer than this (or half the ball's radius)"
+    )
+    overshoot: float = param(
+        5e-3,
+        gt=0,
+        doc="refuse an added vertex whose new edges' balls reach out of the data by more than this (a spike to a "
+        "branch the sheet lacks)",
+    )
+    rounds: int = param(10, ge=1, doc="rounds of insertion (the envelope is re-measured after each)")
+
+
+_DEFAULT = CoverageSettings()
 
 
 @dataclass
@@ -111,16 +141,11 @@ def _picks(samples: np.ndarray, shortfall: np.ndarray, radii: np.ndarray, tolera
     return np.array(out, np.int64)
 
 
-def _insert(v, r, lone, faces, points, point_radii, protrudes):
-    """Each point inserted by splitting its nearest face (in the interior; on the edge when it lands within a
-    fifth of the way from one) or nearest lone edge, unless ``protrudes(points, radii, corners) -> bool mask``
-    says so, and then as a dangling edge from the nearest vertex unless that protrudes too; one split per face
-    and edge per call. Returns the new (v, r, lone, faces), how many were
-    inserted, and a mask of the points deferred because their face or edge was split already."""
+def _insertion_plans(v, lone, faces, points) -> tuple[list, list]:
+    """Per point, how ``_insert`` would put it in: ("edge", lone edge, None), ("faces", [faces], split face edge
+    or None) or None (no face, no edge), and the vertices whose balls that touches (for the protrusion test)."""
     import igl
 
-    faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    lone = np.asarray(lone, np.int64).reshape(-1, 2)
     near_face = np.full(len(points), -1)
     face_d = np.full(len(points), np.inf)
     foot = np.zeros((len(points), 3))
@@ -158,6 +183,18 @@ def _insert(v, r, lone, faces, points, point_radii, protrudes):
         else:
             plans.append(None)
             corners.append(np.zeros(0, np.int64))
+    return plans, corners
+
+
+def _insert(v, r, lone, faces, points, point_radii, protrudes):
+    """Each point inserted by splitting its nearest face (in the interior; on the edge when it lands within a
+    fifth of the way from one) or nearest lone edge, unless ``protrudes(points, radii, corners) -> bool mask``
+    says so, and then as a dangling edge from the nearest vertex unless that protrudes too; one split per face
+    and edge per call. Returns the new (v, r, lone, faces), how many were
+    inserted, and a mask of the points deferred because their face or edge was split already."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    lone = np.asarray(lone, np.int64).reshape(-1, 2)
+    plans, corners = _insertion_plans(v, lone, faces, points)
     refused = protrudes(points, point_radii, corners)
     # where the split would bulge out (a branch the mesh lacks: the teacup's handle, an ear's tip), a dangling
     # lone edge from the nearest vertex instead (V and E grow by one), if its cone stays inside
@@ -241,10 +278,10 @@ def refine_coverage(
     faces: np.ndarray,
     balls: SurfaceBalls,
     max_added: int,
-    tolerance: float = 1e-3,
-    spacing: float = 0.01,
-    overshoot: float = 5e-3,
-    max_rounds: int = 10,
+    tolerance: float = TOLERANCE,
+    spacing: float = _DEFAULT.spacing,
+    overshoot: float = _DEFAULT.overshoot,
+    max_rounds: int = _DEFAULT.rounds,
 ):
     """Up to ``max_added`` of the ``balls``' centres inserted into the medial mesh (``vertices``, ``radii``, lone
     ``edges``, ``faces``) where the envelope falls short of their samples by more than ``tolerance``, the worst
@@ -313,11 +350,28 @@ def envelope_fit(v, r, e, f, balls: SurfaceBalls, rng: np.random.Generator, samp
     return chamfer_hausdorff(balls.distance(on_envelope)[0], np.abs(union.sdf(g)))
 
 
+def keeps(after: float, before: float, slack: float = 1.0) -> bool:
+    """The one keep-if-better rule: a result whose envelope's CD to the data (``envelope_fit``) is at most
+    ``slack`` times that of the one it would replace is kept (ties kept: a step that changes nothing measurable
+    costs nothing)."""
+    return bool(after <= slack * before)
+
+
+def judged(candidate, incumbent, balls: SurfaceBalls, seed: int = 0, slack: float = 1.0) -> tuple[bool, float, float]:
+    """``keeps`` on two ``MedialMesh``es' envelope fits (``envelope_fit``'s CD, each seeded alike): whether
+    ``candidate`` is kept over ``incumbent``, and their two CDs."""
+    after, before = (
+        envelope_fit(m.vertices, m.radii, m.lone_edges(), m.faces, balls, np.random.default_rng(seed))["chamfer"]
+        for m in (candidate, incumbent)
+    )
+    return keeps(after, before, slack), after, before
+
+
 def cover_mat(mat, balls: SurfaceBalls, max_added: int, seed: int = 0, **settings):
     """``refine_coverage`` on a ``MedialMesh``, kept only where it improves the envelope's fit to the data
-    (``envelope_fit``'s CD): (the ``MedialMesh`` kept, stats with ``kept``, ``chamfer_before`` and
-    ``chamfer_after`` when balls were added). On the sharp sphere's membrane, insertions into the closed double
-    layer took CD 0.90e-3 / HD 33e-3 to 4.2e-3 / 251e-3."""
+    (``judged``): (the ``MedialMesh`` kept, stats with ``kept``, ``chamfer_before`` and ``chamfer_after`` when
+    balls were added). On the sharp sphere's membrane, insertions into the closed double layer took CD 0.90e-3 /
+    HD 33e-3 to 4.2e-3 / 251e-3."""
     from qmdf.geometry.ma_format import MedialMesh
 
     v, r, e, f, stats = refine_coverage(
@@ -326,9 +380,5 @@ def cover_mat(mat, balls: SurfaceBalls, max_added: int, seed: int = 0, **setting
     if not stats["added"]:
         return mat, {**stats, "kept": False}
     covered = MedialMesh(v, r, e, f).with_face_edges()
-    before, after = (
-        envelope_fit(m.vertices, m.radii, m.lone_edges(), m.faces, balls, np.random.default_rng(seed))["chamfer"]
-        for m in (mat, covered)
-    )
-    kept = after <= before
+    kept, after, before = judged(covered, mat, balls, seed)
     return (covered if kept else mat), {**stats, "kept": kept, "chamfer_before": before, "chamfer_after": after}

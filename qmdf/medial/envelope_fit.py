@@ -18,10 +18,35 @@ that keeps vertices with few samples, and the flat directions along the sheet, w
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from qmdf.geometry.triangles import barycentric
+from qmdf.schema import param
+
+
+@dataclass
+class FitSettings:
+    """The sheet's ``fit`` step (``sheet.step.fit``) and ``fit_envelope_to_samples``' defaults."""
+
+    iterations: int = param(
+        6,
+        ge=1,
+        doc="damped Gauss-Newton steps. Sharp sphere under +experiment=cad_features, 3,000 vertices: CD / HD "
+        "1.14e-3 / 14.3e-3 (no fit) -> 0.51e-3 / 10.5e-3 (6, 3.8 s) -> 0.49e-3 / 9.8e-3 (12, 6.8 s); the bunny's "
+        "0.54e-3 / 5.5e-3 (6) -> 0.51e-3 / 7.9e-3 (12)",
+    )
+    damping: float = param(
+        0.12,
+        gt=0,
+        doc="Levenberg-Marquardt damping, per vertex's share of the samples: lower moves further per step and "
+        "overshoots, higher needs more steps (sharp sphere, cad_features, 6 steps: CD 0.59e-3 at 0.04, 0.51e-3 "
+        "at 0.12, 0.58e-3 at 0.4)",
+    )
+
+
+_DEFAULT = FitSettings()
 
 
 def foot_weights(foot: np.ndarray, corners: np.ndarray, kind: np.ndarray) -> np.ndarray:
@@ -48,8 +73,8 @@ def fit_envelope_to_samples(
     faces: np.ndarray,
     samples: np.ndarray,
     fixed: np.ndarray | None = None,
-    iterations: int = 6,
-    damping: float = 0.12,
+    iterations: int = _DEFAULT.iterations,
+    damping: float = _DEFAULT.damping,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Move the medial mesh's centres and radii (``edges``: its lone edges; ``faces``) so that its envelope passes
     through the surface ``samples`` (N, 3): ``iterations`` damped Gauss-Newton steps (module doc), vertices where

@@ -4,9 +4,65 @@ points' tangent planes. The ``feature_detect`` stage's doc says when each is use
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from qmdf.geometry.sharp_points import two_cluster_means
+from qmdf.schema import param
+
+
+@dataclass
+class FeatureSettings:
+    """How sharp features are found (``sharp_mesh_segments`` on a mesh, ``field_feature_points`` on a cloud): the
+    ``feature_detect`` stage's config, one source for both."""
+
+    dihedral_deg: float = param(
+        30.0, gt=0, lt=180, doc="mesh: an edge is sharp when its faces' normals turn by more than this"
+    )
+    convex_only: bool = param(
+        True, doc="mesh: keep convex sharp edges only (the medial axis never reaches a concave one)"
+    )
+    spacing: float = param(0.005, gt=0, doc="distance between feature samples along an edge (unit box)")
+    boundary_fold_deg: float = param(
+        150.0, gt=90, lt=180, doc="field: a membrane edge is on its boundary when its faces fold back by more than this"
+    )
+    max_radius: float = param(
+        0.03, gt=0, doc="field: boundary edges where the medial radius and MF are both below this"
+    )
+    offset: float = param(0.004, gt=0, doc="field: distance of the six axis-offset SDF-gradient samples")
+    march_steps: int = param(60, ge=1)
+    march_tol: float = param(5e-4, gt=0, doc="field: marching stops once |sdf| is below this")
+    qem_k: int = param(16, ge=3, doc="field: input points in each point's quadric")
+    qem_regularization: float = param(
+        1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put"
+    )
+    field_seeds: str = param(
+        "both",
+        choices=("membrane", "points", "both"),
+        doc="field: the paper's route from the first MAT's boundary, the input points' two-plane fits, or both",
+    )
+    plane_min_points: int = param(4, ge=3, doc="field: neighbours each of the two planes must hold")
+    plane_tolerance: float = param(
+        0.05,
+        gt=0,
+        doc="field: a neighbour farther than this fraction of the neighbourhood's "
+        "radius from both planes is no part of them (a corner's third face, noise)",
+    )
+    plane_normal_deg: float = param(
+        45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than this from the plane's normal"
+    )
+    arc_ratio: float = param(
+        0.5,
+        ge=0,
+        doc="field: the two planes must fit the neighbours better than one circular "
+        "arc across the edge by this factor (RMS), or it is a curved patch; 0: no such test",
+    )
+    face_normals: bool = param(
+        True,
+        doc="field: feature points carry their two planes' mean normal (feature_retrain's "
+        "bisector samples); false: the paper's feature points alone",
+    )
 
 
 def sample_segments(a: np.ndarray, b: np.ndarray, spacing: float, return_index: bool = False):
@@ -83,56 +139,45 @@ def field_feature_points(
     field,
     points: np.ndarray,
     mat=None,
-    *,
-    seeds: str = "both",
-    spacing: float = 0.005,
-    boundary_fold_deg: float = 150.0,
-    max_radius: float = 0.03,
-    offset: float = 0.004,
-    march_steps: int = 60,
-    march_tol: float = 5e-4,
-    qem_k: int = 16,
-    qem_regularization: float = 1e-3,
-    dihedral_deg: float = 30.0,
-    plane_min_points: int = 4,
-    plane_tolerance: float = 0.05,
-    plane_normal_deg: float = 45.0,
-    arc_ratio: float = 0.5,
-    face_normals: bool = True,
+    settings: FeatureSettings = FeatureSettings(),
     stats: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Feature points of a point cloud from its learned ``field`` (the ``feature_detect`` stage's doc has the
-    routes): ``seeds`` "membrane" marches from the fold edges of the first MAT ``mat`` (vertices, faces, radii)
-    onto the edges, "points" fits two planes around every input point, "both" does both. Returns the points,
-    thinned to ``spacing``, and with ``face_normals`` the mean of their two planes' normals (else None);
-    ``stats`` receives the counts."""
+    routes): ``settings.field_seeds`` "membrane" marches from the fold edges of the first MAT ``mat`` (vertices,
+    faces, radii) onto the edges, "points" fits two planes around every input point, "both" does both. Returns
+    the points, thinned to ``settings.spacing``, and with ``settings.face_normals`` the mean of their two planes'
+    normals (else None); ``stats`` receives the counts."""
     from qmdf.geometry.metrics import fold_edges
     from qmdf.geometry.sharp_points import fit_edges, thin
 
+    c = settings
+    seeds, spacing, face_normals, qem_k = c.field_seeds, c.spacing, c.face_normals, c.qem_k
+    planes = (qem_k, c.plane_tolerance, c.plane_normal_deg)
+    sharp_rule = (c.dihedral_deg, c.plane_min_points, c.arc_ratio)
     stats = {} if stats is None else stats
     need_grads = seeds != "membrane" or face_normals
     grads = field.evaluate(points, grad=True)["sdf_grad"] if need_grads else None
     found, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
     if seeds != "points":
-        folds = fold_edges(mat.vertices, mat.faces, boundary_fold_deg)
+        folds = fold_edges(mat.vertices, mat.faces, c.boundary_fold_deg)
         mid = mat.vertices[folds].mean(1)
-        low = (mat.radii[folds].max(1) < max_radius) & (field.evaluate(mid)["mf"] < max_radius)
+        low = (mat.radii[folds].max(1) < c.max_radius) & (field.evaluate(mid)["mf"] < c.max_radius)
         folds = folds[low]
         start = sample_segments(mat.vertices[folds[:, 0]], mat.vertices[folds[:, 1]], spacing)
         stats["boundary_edges"], stats["membrane_points"] = int(len(folds)), int(len(start))
         if len(start):
-            marched = march_to_features(field, start, march_steps, march_tol, offset)
-            refined = qem_refine(field, marched, points, qem_k, qem_regularization)
+            marched = march_to_features(field, start, c.march_steps, c.march_tol, c.offset)
+            refined = qem_refine(field, marched, points, qem_k, c.qem_regularization)
             found.append(refined)
             if face_normals:
                 # the two planes' mean normal where a fit finds a convex sharp edge here; elsewhere (a point off
                 # any edge) a unit normal, which feature_retrain's bisector walk skips as "no feature"
-                fit = fit_edges(refined, points, grads, qem_k, plane_tolerance, plane_normal_deg)
-                sharp = fit.sharp(dihedral_deg, plane_min_points, arc_ratio)
+                fit = fit_edges(refined, points, grads, *planes)
+                sharp = fit.sharp(*sharp_rule)
                 normals.append(np.where(sharp[:, None], fit.mean_normal, fit.n1))
     if seeds != "membrane":
-        fit = fit_edges(points, points, grads, qem_k, plane_tolerance, plane_normal_deg)
-        sharp = fit.sharp(dihedral_deg, plane_min_points, arc_ratio)
+        fit = fit_edges(points, points, grads, *planes)
+        sharp = fit.sharp(*sharp_rule)
         on_edges, seg = sample_segments(*fit.segments(sharp), spacing, return_index=True)
         found.append(on_edges)
         normals.append(fit.mean_normal[sharp][seg])

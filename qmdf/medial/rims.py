@@ -19,9 +19,42 @@ ellipsoid's rim from 95% of the disc's elliptic radius to 100.0%, its envelope's
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from qmdf.geometry.metrics import rim_sides
+from qmdf.schema import param
+
+
+@dataclass
+class RimSettings:
+    """How far and how finely the rims walk (``extend_rims``): the sheet's ``rims`` step (``sheet.step.rims``)."""
+
+    reach: float = param(
+        4.0,
+        gt=0,
+        doc="the walk goes at most this many times the vertex's distance to the data (a sheet ending in an edge of "
+        "dihedral angle a meets it after r / sin(a/2): 4 r reaches edges down to 29 degrees)",
+    )
+    steps: int = param(32, ge=1, doc="steps of reach * r / steps, then finer ones")
+    levels: int = param(4, ge=1, doc="levels - 1 times one step back and on in steps four times finer")
+    flat: float = param(
+        1e-3,
+        gt=0,
+        doc="the least gain per step length, 1 - cos(theta) (1e-3: on until the spokes are within 2.6 degrees of "
+        "the tangent plane)",
+    )
+    max_tilt_deg: float = param(
+        75.0,
+        gt=0,
+        le=90,
+        doc="the walk needs a spoke within this of the plane (a sheet ending in an edge of 30 degrees has its "
+        "spokes 75 degrees off)",
+    )
+    tol: float = param(
+        1e-4, gt=0, doc="how much farther a moved slab may stand out of the shape, or the samples lie from the envelope"
+    )
 
 
 def rim_directions(
@@ -89,20 +122,22 @@ def _plane_moments(x: np.ndarray, faces: np.ndarray):
     return moments
 
 
-def _walk(x0, d0, foot0, along, normal, step, levels, steps, distance, is_inside, flat, s_max, min_cos):
-    """Walk every point from ``x0`` (as the module doc says) in steps of ``step``, up to ``steps`` of them; then
-    ``levels`` - 1 times back one step (the last one may straddle the axis's end, its gain an average) and on in
-    steps a quarter as long (8 at most). The direction each time: the spoke to the closest data point projected
-    onto the sheet's tangent plane (``normal``, the plane's normal), or a curve's ``along`` (``normal`` zero),
-    never back against ``along``, and only while the spoke is within acos(``min_cos``) of
-    the plane: a spoke across the sheet (its middle, a seam's side) gives no direction. Returns (points,
-    distances, walked length, whether the length ``s_max`` stopped it). ``d0``, ``foot0``: the start's distance and
-    closest point."""
+def _walk(x0, d0, foot0, along, normal, s_max, distance, is_inside, settings: RimSettings):
+    """Walk every point from ``x0`` (as the module doc says) in steps of ``s_max`` / ``settings.steps``, up to
+    ``steps`` of them; then ``levels`` - 1 times back one step (the last one may straddle the axis's end, its gain
+    an average) and on in steps a quarter as long (8 at most). The direction each time: the spoke to the closest
+    data point projected onto the sheet's tangent plane (``normal``, the plane's normal), or a curve's ``along``
+    (``normal`` zero), never back against ``along``, and only while the spoke is within ``max_tilt_deg`` of the
+    plane: a spoke across the sheet (its middle, a seam's side) gives no direction. Returns (points, distances,
+    walked length, whether the length ``s_max`` stopped it). ``d0``, ``foot0``: the start's distance and closest
+    point."""
+    steps, levels, flat = settings.steps, settings.levels, settings.flat
+    min_cos = np.cos(np.radians(settings.max_tilt_deg))
     x, d, foot = x0.copy(), d0.copy(), foot0.copy()
     s = np.zeros(len(x))
     capped = np.zeros(len(x), bool)
     line = ~np.any(normal != 0, axis=1)
-    h = np.array(step, np.float64)
+    h = np.array(s_max / steps, np.float64)
     for level in range(levels):
         active = np.flatnonzero(h > 0)
         last = (x.copy(), d.copy(), foot.copy(), s.copy())  # each point's state before its last step
@@ -150,30 +185,19 @@ def extend_rims(
     faces: np.ndarray,
     distance,
     is_inside,
-    reach: float = 4.0,
-    steps: int = 32,
-    levels: int = 4,
-    flat: float = 1e-3,
-    max_tilt_deg: float = 75.0,
-    tol: float = 1e-4,
+    settings: RimSettings = RimSettings(),
     fixed: np.ndarray | None = None,
     samples: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Each rim vertex and curve end (``rim_directions``) moved outward as the module doc says.
-
-    The walk goes at most ``reach`` times the vertex's distance to the data (a sheet ending in an edge of dihedral
-    angle a meets it after r / sin(a/2): 4 r reaches edges down to 29 degrees), in ``steps`` steps of
-    reach * r / steps, then ``levels`` - 1 times one step back and on in steps four times finer. ``flat``: the
-    least gain per step length, 1 - cos(theta) (1e-3: on until the spokes are within 2.6 degrees of the tangent
-    plane); ``max_tilt_deg``: the walk needs a spoke within this of the plane (a sheet ending in an edge of 30
-    degrees has its spokes 75 degrees off). ``distance(points) -> (d, closest)`` to the data;
-    ``is_inside(points) -> bool``; ``fixed``: vertices that stay (feature tips).
+    """Each rim vertex and curve end (``rim_directions``) moved outward as the module doc says, walked as
+    ``RimSettings`` says. ``distance(points) -> (d, closest)`` to the data; ``is_inside(points) -> bool``;
+    ``fixed``: vertices that stay (feature tips).
 
     A move that would turn one of the vertex's faces over, or make its slab stand out of the shape by more than
     ``tol`` beyond what it did (``_protrusion``), is halved until none does (at most five times, else the vertex
     stays). With ``samples`` (points on the data's surface), a moved vertex goes back where the samples within
     its old ball's reach (its radius plus its step) lie farther from the envelope than before on balance, or the
-    farthest of them farther than the farthest was, by more than ``tol`` (``_keep_gains``, three rounds): the old
+    farthest of them farther than the farthest was, by more than ``tol`` (``keep_local_gains``, three rounds): the old
     ball may have covered what the new one does not (the exact box's corners, 0.7e-3 worse without it).
     Returns (vertices, radii, stats)."""
     v = np.array(vertices, np.float64)
@@ -187,24 +211,37 @@ def extend_rims(
     if not len(index):
         return v, r, stats
     d0, foot0 = distance(v[index])
-    s_max = reach * d0
     end, d_end, walked, capped = _walk(
-        v[index],
-        d0,
-        foot0,
-        along,
-        normal,
-        s_max / steps,
-        levels,
-        steps,
-        distance,
-        is_inside,
-        flat,
-        s_max,
-        np.cos(np.radians(max_tilt_deg)),
+        v[index], d0, foot0, along, normal, settings.reach * d0, distance, is_inside, settings
     )
+    scale, trial, trial_r = _shape_keeping_moves(v, r, faces, index, end, d_end, walked > 0, distance, settings.tol)
+    moved = scale > 0
+    v0, r0 = v.copy(), r.copy()
+    v[index[moved]], r[index[moved]] = trial[index[moved]], trial_r[index[moved]]
+    reverted = 0
+    if samples is not None and moved.any():
+        samples = np.asarray(samples, np.float64)
+        reverted = keep_local_gains(v0, r0, v, r, edges, faces, index, moved, samples, settings.tol)
+    length = walked * scale
+    stats.update(
+        moved=int(moved.sum()),
+        halved=int((moved & (scale < 1)).sum()),
+        refused=int((~moved & (walked > 0)).sum()),
+        reverted=int(reverted),
+        median_step=float(np.median(length[moved])) if moved.any() else 0.0,
+        max_step=float(length[moved].max()) if moved.any() else 0.0,
+        at_reach=int(capped.sum()),
+    )
+    return v, r, stats
+
+
+def _shape_keeping_moves(v, r, faces, index, end, d_end, walks, distance, tol):
+    """How much of each walk (to ``end``, distance ``d_end``) vertex ``index`` may take: halved while it would
+    turn one of its faces over or make its slab stand out of the shape by more than ``tol`` beyond what it did
+    (a seam's side taken for a rim walks onto the next sheet: its faces then cut across the inside, their
+    interpolated balls out of it), at most five times, else none. Returns the scales and the moved vertices and
+    radii (all vertices; only ``index`` changed)."""
     move = end - v[index]
-    walks = walked > 0
     touched = np.flatnonzero(np.isin(faces, index[walks]).any(1))
     before = _protrusion(v, r, faces[touched], distance)
     scale = walks.astype(np.float64)
@@ -216,37 +253,17 @@ def extend_rims(
         part = (scale > 0) & (scale < 1)
         if part.any():
             trial_r[index[part]] = distance(trial[index[part]])[0]
-        # a move must not turn a face over, nor make its slab stand out of the shape by more than ``tol``
-        # beyond what it did (a seam's side taken for a rim walks onto the next sheet: its faces then cut
-        # across the inside, their interpolated balls out of it)
-        bad = _turned_over(v[faces[touched]], trial[faces[touched]])
+        bad = turned_over(v[faces[touched]], trial[faces[touched]])
         bad |= _protrusion(trial, trial_r, faces[touched], distance) > np.maximum(before, 0.0) + tol
         hit = np.isin(index, faces[touched[bad]].ravel()) & (scale > 0)
         if not hit.any():
             break
         scale[hit] *= 0.5
     scale[hit] = 0.0
-    moved = scale > 0
-    v0, r0 = v.copy(), r.copy()
-    v[index[moved]], r[index[moved]] = trial[index[moved]], trial_r[index[moved]]
-    partial = moved & (scale < 1)
-    reverted = 0
-    if samples is not None and moved.any():
-        reverted = _keep_gains(v0, r0, v, r, edges, faces, index, moved, np.asarray(samples, np.float64), tol)
-    length = walked * scale
-    stats.update(
-        moved=int(moved.sum()),
-        halved=int(partial.sum()),
-        refused=int((~moved & walks).sum()),
-        reverted=int(reverted),
-        median_step=float(np.median(length[moved])) if moved.any() else 0.0,
-        max_step=float(length[moved].max()) if moved.any() else 0.0,
-        at_reach=int(capped.sum()),
-    )
-    return v, r, stats
+    return scale, trial, trial_r
 
 
-def _keep_gains(v0, r0, v, r, edges, faces, index, moved, samples, tol) -> int:
+def keep_local_gains(v0, r0, v, r, edges, faces, index, moved, samples, tol) -> int:
     """``extend_rims``' guard (see there), on ``v`` and ``r`` in place; the number of vertices sent back."""
     from scipy.spatial import cKDTree
 
@@ -286,7 +303,7 @@ def _keep_gains(v0, r0, v, r, edges, faces, index, moved, samples, tol) -> int:
     return back
 
 
-def _turned_over(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+def turned_over(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     """Mask of the triangles (K, 3, 3) whose normal turns by more than 90 degrees (or that collapse)."""
 
     def normals(t):

@@ -17,6 +17,82 @@ from numba import njit
 
 from qmdf.geometry.metrics import edges_off_polygons
 from qmdf.medial.thinning import Collapse, CubicalComplex, cubical_euler
+from qmdf.schema import param
+
+
+@dataclass
+class CollapseSettings:
+    """How the covering's solid collapses to one layer (``thinned_sheet``): the expert settings of the sheet
+    stage (``sheet.expert``), each with what it was measured on."""
+
+    valley_share: float = param(
+        0.5,
+        gt=0,
+        le=1,
+        doc="squares and edges whose q lies above this share of the way from q's local floor up to eps may "
+        "collapse (the covering's outer shell)",
+    )
+    off_axis: float = param(
+        0.75,
+        gt=0,
+        doc="squares whose corners lie farther than this many grid steps from the membrane are off the axis and "
+        "may collapse",
+    )
+    off_axis_wide: float = param(
+        3.0,
+        ge=0,
+        doc="the sheet stage, with radius=data: a second sheet with this off_axis, and the compact one with the "
+        "input's chi whose envelope fits the data better is kept (0: only off_axis). Where a thin plate lies "
+        "oblique to the grid, its middle collapses away at 0.75 steps (abc_00000125: CD 0.43e-3 -> 0.27e-3); on "
+        "thick parts 3 steps keeps the covering's outer shell (the block 0.56e-3 -> 1.12e-3)",
+    )
+    match_topology: bool = param(
+        True,
+        doc="the sheet stage: where the input's solid has a known Euler characteristic (a closed mesh's, a "
+        "cloud's Poisson surface's), collapse the nodes below the highest of 15 levels from the covering's eps "
+        "down to 0.3 eps whose solid has it (the kitten at eps 0.047: chi -1, a bridge; at 0.040 chi 0 as its "
+        "genus implies)",
+    )
+    fin_area: float = param(
+        0.25,
+        ge=0,
+        lt=1,
+        doc="placed squares below this share of a grid square's area are flat: a fin around a curve-like axis or "
+        "a step across a sheet",
+    )
+    valley_only: bool = param(
+        True,
+        doc="also release squares whose q is not a valley across them (below both parallel squares one node "
+        "away) and edges not a valley across both other axes: one layer of a wide flat valley stays (the block: "
+        "43k vertices after simplification -> 9.7k, seams 56k -> 1k; the teacup's seams 669 -> 240)",
+    )
+    fill_pockets: bool = param(
+        True,
+        doc="fill the covering's enclosed voids where the learned sdf is inside everywhere in them before the "
+        "collapse: a covering thick around a junction of sheets encloses islands of higher q, and each became a "
+        "closed pocket of the sheet (b2 > 0); a void that reaches outside the shape (a hollow part) stays",
+    )
+    grow_topology: bool = param(
+        True,
+        doc="where no level of q has the input's Euler characteristic (at most 1: one piece of genus g), grow the "
+        "solid in the covering from its lowest q, node by node in q's order, each joining only where it changes "
+        "no topology, then the g lowest-q tunnels closed (medial.topology_growth; the sharp sphere's maze of "
+        "genus 31); off, or chi above 1: the covering's nodes as they are, with a warning",
+    )
+    speck_fraction: float = param(
+        0.01,
+        ge=0,
+        lt=1,
+        doc="drop pieces of the covering's solid with fewer nodes than this share of the largest's (cover's rule "
+        "for its specks)",
+    )
+    max_nodes: int = param(
+        1_000_000,
+        ge=1000,
+        doc="collapse on every k-th grid node, k the smallest that leaves at most this many nodes inside the "
+        "covering: a thick covering (the bunny's eps raised to 0.034: 2.2M nodes) took 370 s at every node; at "
+        "eps 0.055 every second node (172k) gives chi 1 in 17 s; the teacup's 570k nodes keep every node",
+    )
 
 
 @dataclass
@@ -286,30 +362,28 @@ def single_sheet(
     membrane_vertices: np.ndarray,
     membrane_faces: np.ndarray,
     eps: float,
-    valley_share: float = 0.5,
-    off_axis: float = 0.75,
-    fin_area: float = 0.25,
-    valley_only: bool = True,
+    settings: CollapseSettings = CollapseSettings(),
 ) -> Sheet:
     """The single sheet of the grid nodes ``inside`` the covering (q at them), placed on the membrane.
 
     The cubes collapse first, in q's order. Then squares and edges may collapse where they are off the axis
-    (their corners, on average, farther than ``off_axis`` grid steps from the membrane: what the cubes left
-    on the covering's outer shell), where they are flat once placed (smaller than ``fin_area`` of a grid square:
-    a fin around a curve-like axis, a step across a sheet), or where a square of lower q already covers their
-    placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``). With
-    ``valley_only``, squares and edges across which q has no valley are released too (``_valley_squares``,
+    (their corners, on average, farther than ``settings.off_axis`` grid steps from the membrane: what the cubes
+    left on the covering's outer shell), where they are flat once placed (smaller than ``settings.fin_area`` of a
+    grid square: a fin around a curve-like axis, a step across a sheet), or where a square of lower q already
+    covers their placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``).
+    With ``valley_only``, squares and edges across which q has no valley are released too (``_valley_squares``,
     ``_valley_edges``). Each release can expose more, so release and collapse repeat until nothing changes."""
     from qmdf.geometry.inside import mesh_distance
 
     lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
+    off_axis, fin_area = settings.off_axis, settings.fin_area
     h = float(spacing.max())
-    col = Collapse(inside, q, _keep_levels(inside, q, eps, valley_share))
+    col = Collapse(inside, q, _keep_levels(inside, q, eps, settings.valley_share))
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
     dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
     # masks over this first complex's cells, so applied in the first round only (later rounds only remove cells)
-    off_valley = (~_valley_squares(cx, q), ~_valley_edges(cx, q)) if valley_only else None
+    off_valley = (~_valley_squares(cx, q), ~_valley_edges(cx, q)) if settings.valley_only else None
     for _ in range(20):  # until nothing more is released (a released layer can expose the next)
         far = dist > off_axis * h
         s, e = cx.squares, cx.edges
@@ -335,17 +409,17 @@ def single_sheet(
     return Sheet(x, _lone_edges(cx), faces, stats)
 
 
-def pick_sheet(candidates: list, fit_of, target_chi: int | None = None) -> tuple[int, list[dict]]:
-    """Which of several ``(MedialMesh, stats)`` sheets of one shape to keep: a compact one before one that is not,
-    then one with ``target_chi``, then the one whose envelope fits the data best (``fit_of(vertices, radii, lone
-    edges, faces) -> CD``; a sheet's own ``stats["cd"]`` where ``simplified_sheet`` measured it already). Returns its
-    index and, per candidate, what decided."""
+def pick_sheet(candidates: list, chamfer, target_chi: int | None = None) -> tuple[int, list[dict]]:
+    """Which of several ``(refinement.MAT, stats)`` sheets of one shape to keep: a compact one before one that is
+    not, then one with ``target_chi``, then the one whose envelope fits the data best (``stats["cd"]`` where the
+    refinement measured it, else ``chamfer(mat) -> CD``; ``refinement``'s measure). Returns its index and, per
+    candidate, what decided."""
     rows = [
         {
             "compact": bool(stats["compact"]),
             "chi": int(stats["after"]["chi"]),
             "vertices": len(mat.vertices),
-            "cd": float(stats["cd"] if "cd" in stats else fit_of(mat.vertices, mat.radii, mat.lone_edges(), mat.faces)),
+            "cd": float(stats["cd"] if stats.get("cd") is not None else chamfer(mat)),
         }
         for mat, stats in candidates
     ]
@@ -353,70 +427,105 @@ def pick_sheet(candidates: list, fit_of, target_chi: int | None = None) -> tuple
     return min(range(len(rows)), key=ranks.__getitem__), rows
 
 
-def simplified_sheet(
+def refined_sheet(
+    grid: dict,
+    evaluate,
+    membrane: tuple[np.ndarray, np.ndarray],
+    radii_of,
+    data,
+    steps: list,
+    settings: CollapseSettings = CollapseSettings(),
+    target_chi: int | None = None,
+    off_axis_wide: float = 0.0,
+):
+    """The sheet of a covering (``thinned_sheet`` on the ``membrane``'s (vertices, faces)), refined by ``steps``
+    on ``data`` (``refinement.refine``); with ``off_axis_wide`` (not 0, not ``settings.off_axis``) built twice,
+    the second time under that off-axis rule, the better kept (``pick_sheet``). Returns the ``refinement.MAT`` and
+    its stats: the collapse's, ``before`` and ``after`` refinement (``sheet_counts``), ``steps`` (each step's
+    stats), ``cd`` (its envelope's, where a judged step measured it), ``compact`` and ``off_axis``."""
+    import dataclasses
+
+    from qmdf.medial.refinement import refine
+
+    def build(off_axis: float):
+        data.log.info("sheet: collapsing the covering with off_axis %s", off_axis)
+        mat, stats = thinned_sheet(
+            grid, evaluate, *membrane, radii_of, dataclasses.replace(settings, off_axis=off_axis), target_chi
+        )
+        if stats["level"]:
+            data.log.log(*describe_level(stats["level"]))
+        stats["before"] = sheet_counts(mat)
+        mat, stats["steps"], stats["cd"] = refine(mat, data, steps)
+        stats.update(compact=data.is_compact(len(mat.vertices)), after=sheet_counts(mat))
+        return mat, stats
+
+    mat, stats = build(settings.off_axis)
+    if not off_axis_wide or off_axis_wide == settings.off_axis:
+        return mat, stats
+    candidates = [(mat, stats), build(off_axis_wide)]
+    kept, rows = pick_sheet(candidates, data.chamfer, target_chi)
+    mat, stats = candidates[kept]
+    for row, off_axis in zip(rows, (settings.off_axis, off_axis_wide)):
+        row["off_axis"] = off_axis
+    stats["off_axis"] = {"tried": rows, "kept": rows[kept]["off_axis"]}
+    data.log.info("sheet: off_axis %s kept (%s)", rows[kept]["off_axis"], "; ".join(map(_row_text, rows)))
+    return mat, stats
+
+
+def _row_text(r: dict) -> str:
+    compact = "" if r["compact"] else ", not compact"
+    return f"{r['off_axis']}: CD {r['cd']:.3e} to the data, {r['vertices']} vertices, chi {r['chi']}{compact}"
+
+
+def describe_level(level: dict) -> tuple[int, str]:
+    """The log level and line that say which level of q the collapse took (``_solid``'s ``level`` stats)."""
+    import logging
+
+    scan = ", ".join(f"{e:.4f}: {c}" for e, c in level["scan"])
+    head = (
+        f"sheet: no level of q from eps {level['scan'][0][0]:.4g} down gives the solid the input's Euler "
+        f"characteristic {level['target_chi']} (scan: {scan}); "
+    )
+    if level.get("grown"):
+        g = level["grown"]
+        return logging.INFO, head + (
+            f"grown in q's order instead: {g['joined']} of the covering's {g['allowed']} nodes, "
+            f"{len(g['closures_q'])} tunnels closed, chi {g['chi']} (sheet.expert.grow_topology)"
+        )
+    if level["eps"] is None:
+        return logging.WARNING, head + "the covering's nodes are collapsed as they are"
+    return logging.INFO, (
+        f"sheet: the nodes below q = {level['eps']:.4g} collapsed, the highest level whose solid has the input's "
+        f"Euler characteristic {level['target_chi']} (covering's eps {level['scan'][0][0]:.4g}; "
+        "sheet.expert.match_topology)"
+    )
+
+
+def thinned_sheet(
     grid: dict,
     evaluate,
     membrane_vertices: np.ndarray,
     membrane_faces: np.ndarray,
     radii_of,
-    *,
-    max_nodes: int = 1_000_000,
-    speck_fraction: float = 0.01,
-    valley_share: float = 0.5,
-    off_axis: float = 0.75,
-    fin_area: float = 0.25,
-    valley_only: bool = True,
-    fill_pockets: bool = True,
+    settings: CollapseSettings = CollapseSettings(),
     target_chi: int | None = None,
-    grow_topology: bool = True,
-    target_vertices: int = 3000,
-    compact_slack: float = 1.5,
-    boundary_weight: float = 1.0,
-    max_turn_deg: float = 60.0,
-    tips: np.ndarray | None = None,
-    tip_reach: float = 0.01,
-    centre_of=None,
-    refine_of=None,
-    refine_vertices: int = 0,
-    fit_of=None,
-    extend_of=None,
-    fit_envelope_of=None,
 ):
-    """The compact single-layer MAT of a covering: its grid (``inside``, ``lo``, ``spacing``, ``eps``, as
-    ``covering.build_covering`` gives it) on every k-th node within ``max_nodes`` (``node_stride``), pieces below
-    ``speck_fraction`` of the largest dropped, with ``fill_pockets`` its voids inside the shape filled
-    (``fill_voids``), q and sdf from ``evaluate(points)``, with ``target_chi`` the nodes below the highest level
-    whose solid has that Euler characteristic (``level_with_topology``; none: with ``grow_topology`` and
-    ``target_chi`` <= 1 a solid grown in the covering with it, ``topology_growth``, else the covering's nodes),
-    collapsed onto the membrane (``single_sheet``), radii from ``radii_of(vertices)``, then simplified to
-    ``target_vertices`` (compact: at most ``compact_slack`` times as many left; 0: not) under the spherical quadric
-    error, and last, with ``centre_of(vertices) -> (vertices, radii)``, each vertex moved onto the axis; vertices
-    within ``tip_reach`` of the ``tips`` (feature points) stay in place through both. Last, ``refine_of(vertices,
-    radii, lone edges, faces, max_added) -> (same four, stats)`` adds up to ``refine_vertices`` where the envelope
-    falls short of the surface (``medial.coverage``), and a second simplification, the added vertices fixed, brings
-    the MAT back to ``target_vertices`` (then centred again): on the bunny 3,000 + 1,000 -> 3,000 vertices kept CD
-    1.04e-3 of the 4,000's 0.97e-3. With ``fit_of(vertices, radii, lone edges, faces) -> CD`` against the data, the
-    MAT before coverage is kept where coverage and the second simplification made it worse (the exact ellipsoid's
-    sheet, already within 1e-3 of its surface everywhere: CD 1.06e-4 before, 1.40e-4 after). Last, with
-    ``extend_of(vertices, radii, lone edges, faces, fixed) -> (vertices, radii, stats)``, the rims are carried out
-    to the axis's end (``medial.rims``), the tips fixed. Then, with ``fit_envelope_of(vertices, radii, lone
-    edges, faces, fixed) -> (vertices, radii, stats)``, the spheres are fitted to the data's surface
-    (``medial.envelope_fit``), the tips fixed, kept only where ``fit_of`` says the fit improved. Returns the
-    ``MedialMesh`` and its stats (before and after simplification)."""
-    from qmdf.geometry.ma_format import MedialMesh
-    from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
-    from qmdf.medial.simplify import simplify_medial_mesh
+    """The single-layer MAT of a covering before refinement: its grid (``inside``, ``lo``, ``spacing``, ``eps``,
+    as ``covering.build_covering`` gives it) on every k-th node within ``settings.max_nodes`` (``node_stride``),
+    its solid prepared (``_solid``: specks dropped, voids filled, with ``target_chi`` the level or the growth of
+    the input's topology), q and sdf from ``evaluate(points)``, collapsed onto the membrane (``single_sheet``),
+    radii from ``radii_of(vertices)``. Returns the ``refinement.MAT`` and its stats."""
+    from qmdf.medial.refinement import MAT
 
-    stride = node_stride(grid["inside"], max_nodes)
+    stride = node_stride(grid["inside"], settings.max_nodes)
     spacing = np.asarray(grid["spacing"]) * stride
-    inside = keep_large_pieces(grid["inside"][::stride, ::stride, ::stride], speck_fraction)
+    inside = keep_large_pieces(grid["inside"][::stride, ::stride, ::stride], settings.speck_fraction)
     if not inside.any():
         from qmdf.errors import QmdfError
 
         raise QmdfError("no grid node lies inside the covering: nothing to collapse into a sheet")
     box, first = _crop(inside)
     inside, lo = inside[box], np.asarray(grid["lo"]) + first * spacing
-
     q, sdf = np.full(inside.shape, np.nan), np.full(inside.shape, np.nan)
 
     def field_at(n):
@@ -429,23 +538,37 @@ def simplified_sheet(
         return q[tuple(n.T)], sdf[tuple(n.T)]
 
     field_at(np.argwhere(inside))
+    inside, eps, stats = _solid(inside, q, float(grid["eps"]), field_at, settings, target_chi)
+    field_at(np.argwhere(inside))  # the filled voids' nodes too
+    q = np.where(inside, q, np.inf)
+    sheet = single_sheet(inside, q, lo, spacing, membrane_vertices, membrane_faces, eps, settings)
+    radii = radii_of(sheet.vertices)
+    stats.update(nodes_inside=int(inside.sum()), grid_stride=stride, collapse=sheet.stats)
+    return MAT(sheet.vertices, radii, sheet.edges, sheet.faces), stats
+
+
+def _solid(inside, q, eps: float, field_at, settings: CollapseSettings, target_chi: int | None):
+    """The nodes to collapse, the level they lie below and stats: pieces below ``speck_fraction`` of the largest
+    dropped, with ``fill_pockets`` the voids inside the shape filled (``fill_voids``, the sdf from
+    ``field_at(nodes) -> (q, sdf)``); with ``target_chi`` the nodes below the highest level whose solid has that
+    Euler characteristic (``level_with_topology``), none: with ``grow_topology`` and ``target_chi`` <= 1 a solid
+    grown in the covering with it (``topology_growth``), else the covering's nodes."""
     voids: list[dict] = []
 
     def prepare(mask):
-        mask = keep_large_pieces(mask, speck_fraction)
-        if fill_pockets:
+        mask = keep_large_pieces(mask, settings.speck_fraction)
+        if settings.fill_pockets:
             mask, filled = fill_voids(mask, lambda n: field_at(n)[1] > 0)
             voids.append(filled)
         return mask
 
-    eps = float(grid["eps"])
     level = None
     if target_chi is not None:
         found, mask, scan = level_with_topology(np.where(inside, q, np.inf), eps, target_chi, prepare)
         level = {"target_chi": int(target_chi), "eps": found, "scan": scan}
         if found is not None:
             inside, eps = mask, found
-        elif grow_topology and target_chi <= 1:
+        elif settings.grow_topology and target_chi <= 1:
             from qmdf.medial.topology_growth import grow_with_topology
 
             allowed = prepare(inside)
@@ -453,104 +576,42 @@ def simplified_sheet(
             inside, level["grown"] = grow_with_topology(allowed, np.where(allowed, q, np.inf), target_chi)
     if level is None or (level["eps"] is None and "grown" not in level):
         inside = prepare(inside)
-    field_at(np.argwhere(inside))  # the filled voids' nodes too
-    q = np.where(inside, q, np.inf)
-    sheet = single_sheet(
-        inside,
-        q,
-        lo,
-        spacing,
-        membrane_vertices,
-        membrane_faces,
-        eps,
-        valley_share,
-        off_axis,
-        fin_area,
-        valley_only,
-    )
-    radii = radii_of(sheet.vertices)
-    stats = {
-        "nodes_inside": int(inside.sum()),
-        "grid_stride": stride,
-        "voids": voids[-1] if voids else None,
-        "level": level,
-        "collapse": sheet.stats,
-        "before": {
-            "vertices": len(sheet.vertices),
-            "edges": len(sheet.edges),
-            "faces": len(sheet.faces),
-            "chi": sheet.euler,
-        },
+    return inside, eps, {"voids": voids[-1] if voids else None, "level": level}
+
+
+def sheet_counts(mat) -> dict:
+    """A ``refinement.MAT``'s size and topology: vertices, edges (the faces' too), faces, lone edges, chi, seam
+    and rim edges."""
+    from qmdf.geometry.metrics import euler_medial_mesh, seam_edges, single_face_edges
+
+    return {
+        "vertices": len(mat.vertices),
+        "edges": int(len(mat.medial_mesh().edges)),
+        "faces": len(mat.faces),
+        "lone_edges": int(len(mat.edges)),
+        "chi": euler_medial_mesh(len(mat.vertices), mat.edges, mat.faces),
+        "seam_edges": int(len(seam_edges(mat.faces))),
+        "rim_edges": int(len(single_face_edges(mat.faces))),
     }
-    v, e, f = sheet.vertices, sheet.edges, sheet.faces
 
-    def near_tips(x):
-        if tips is None:
-            return None
-        from scipy.spatial import cKDTree
 
-        return cKDTree(tips).query(x)[0] < tip_reach
-
-    def simplify(v, radii, e, f, fixed):
-        res = simplify_medial_mesh(v, radii, e, f, target_vertices, boundary_weight, max_turn_deg, fixed)
-        return res.vertices, res.radii, res.edges, res.faces, res.stats
-
-    def centre(v, radii):
-        moved, centred_radii = centre_of(v)
-        fixed = near_tips(v)  # feature tips stay on their sharp edges, as in the simplification
-        if fixed is not None:
-            moved[fixed], centred_radii[fixed] = v[fixed], radii[fixed]
-        step = np.linalg.norm(moved - v, axis=1)
-        return moved, centred_radii, {"median_move": float(np.median(step)), "max_move": float(step.max())}
-
-    if target_vertices and len(v) > target_vertices:
-        v, radii, e, f, stats["simplify"] = simplify(v, radii, e, f, near_tips(v))
-    if centre_of is not None:
-        v, radii, stats["centred"] = centre(v, radii)
-
-    def compact(n):
-        return not target_vertices or n <= compact_slack * target_vertices
-
-    if refine_of is not None and refine_vertices > 0:
-        if not compact(len(v)):
-            stats["coverage"] = {"added": 0, "skipped": "the sheet is not compact (simplification stopped early)"}
-        else:
-            n0, before = len(v), (v, radii, e, f)
-            v, radii, e, f, stats["coverage"] = refine_of(v, radii, e, f, refine_vertices)
-            if target_vertices and len(v) > target_vertices:
-                # back to the budget: the added balls (and the tips) stay, the collapses take what matters least
-                added = np.arange(len(v)) >= n0
-                tips_now = near_tips(v)
-                v, radii, e, f, stats["resimplify"] = simplify(
-                    v, radii, e, f, added if tips_now is None else added | tips_now
-                )
-                if centre_of is not None:
-                    v, radii, stats["recentred"] = centre(v, radii)
-            if fit_of is not None and stats["coverage"].get("added"):
-                cd_before, cd_after = fit_of(*before), fit_of(v, radii, e, f)
-                stats["coverage"].update(cd_before=cd_before, cd_after=cd_after, kept=bool(cd_after <= cd_before))
-                if cd_after > cd_before:
-                    v, radii, e, f = before
-    if extend_of is not None:
-        v, radii, stats["rims"] = extend_of(v, radii, e, f, near_tips(v))
-    if fit_envelope_of is not None:
-        fitted, fitted_radii, fit_stats = fit_envelope_of(v, radii, e, f, near_tips(v))
-        if fit_of is not None:
-            cd_before, cd_after = fit_of(v, radii, e, f), fit_of(fitted, fitted_radii, e, f)
-            fit_stats.update(cd_before=cd_before, cd_after=cd_after, kept=bool(cd_after < cd_before))
-            stats["cd"] = min(cd_before, cd_after)  # the kept sheet's, for pick_sheet
-        if fit_stats.get("kept", True):
-            v, radii = fitted, fitted_radii
-        stats["envelope_fit"] = fit_stats
-    mat = MedialMesh(v, radii, e, f).with_face_edges()
-    stats["compact"] = compact(len(v))
-    stats["after"] = {
-        "vertices": len(v),
-        "edges": int(len(mat.edges)),
-        "faces": len(f),
-        "lone_edges": int(len(e)),
-        "chi": euler_medial_mesh(len(v), e, f),
-        "seam_edges": int(len(seam_edges(f))),
-        "rim_edges": int(len(single_face_edges(f))),
-    }
-    return mat, stats
+def sheet_verdict(mat, stats: dict, tolerance: float, target_vertices: int) -> str | None:
+    """Whether the refined sheet is the MAT: sets ``stats["fits_data"]`` (its envelope within ``tolerance`` of the
+    data, where the refinement measured it) and ``stats["compact"]``; returns why not (export then writes the
+    membrane), None where it is."""
+    # an undertrained field (no inside) thins to a point: no sheet, whatever its chi. But a sphere's MAT is one
+    # ball: a point is the MAT where its ball lies within the tolerance of the data (export takes it as is)
+    stats["fits_data"] = bool(stats.get("cd") is not None and stats["cd"] <= tolerance)
+    v, e, f, r_max = len(mat.vertices), len(mat.edges), len(mat.faces), float(mat.radii.max(initial=0.0))
+    if (not (f or e) and not stats["fits_data"]) or not r_max > 0:
+        stats["compact"] = False
+        return (
+            f"the single sheet collapsed to {v} vertices, {e} lone edges, {f} faces, largest radius {r_max:.3g}: the "
+            "field's inside is too thin for a MAT here (see the train stage's slices.png); export writes the membrane"
+        )
+    if not stats["compact"]:
+        return (
+            f"the single sheet is not compact: simplification stopped at {v} vertices (target {target_vertices}; "
+            f"{stats['after']['seam_edges']} seam edges); export writes the membrane as the MAT"
+        )
+    return None

@@ -25,6 +25,27 @@ from numba import njit
 from qmdf.geometry.metrics import rim_sides
 from qmdf.geometry.rows import unique_rows
 from qmdf.geometry.triangles import face_areas
+from qmdf.schema import param
+
+
+@dataclass
+class SimplifySettings:
+    """The sheet's ``simplify`` step (``sheet.step.simplify``) and ``simplify_medial_mesh``'s defaults."""
+
+    boundary_weight: float = param(
+        1.0, ge=0, doc="weight of the rims' planes in the quadric (keeps the sheet's free boundary in place)"
+    )
+    max_turn_deg: float = param(60.0, gt=0, le=180, doc="refuse a collapse that turns a face by more than this")
+    deviation: float = param(
+        0.0,
+        ge=0,
+        doc="collapse only where the envelope moves by at most this share of sheet.tolerance (root mean square over "
+        "the planes a collapse merges), so the vertex count follows the shape and sheet.target_vertices is a cap; "
+        "0: down to sheet.target_vertices, a fixed budget",
+    )
+
+
+_DEFAULT = SimplifySettings()
 
 
 @njit(cache=True)
@@ -207,10 +228,70 @@ def _turns_ok(a, b, x, face_of, fv, m, min_cos):
 
 
 @njit(cache=True)
-def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_b, target, min_cos):
-    """The collapse loop of ``simplify_medial_mesh`` (see there): cheapest first, link condition, turn test;
-    ``m`` (spheres), ``fv`` (faces), ``tips`` and the quadrics are updated in place. Returns (alive, face_alive,
-    lone edges, collapses, link-rejected, turn-rejected)."""
+def _contract_connectivity(a, b, shared, face_of, lone, fv, face_alive):
+    """Edge (a, b) collapsed into a: the faces it shares die, b's faces and lone edges pass to a, and a shared
+    face's side that no face holds any more stays as a lone edge."""
+    for f in shared:
+        face_alive[f] = False
+        for k in range(3):
+            _discard(face_of[fv[f, k]], f)
+    for f in face_of[b]:
+        for k in range(3):
+            if fv[f, k] == b:
+                fv[f, k] = a
+        _add(face_of[a], f)
+    face_of[b].clear()
+    for w in lone[b]:
+        _discard(lone[w], b)
+        if w != a:
+            _add(lone[w], a)
+            _add(lone[a], w)
+    _discard(lone[a], b)
+    lone[b].clear()
+    # a face's side that no face holds any more stays as a lone edge
+    for f in shared:
+        for k in range(3):
+            w = fv[f, k]
+            if w != a and w != b:
+                held = False
+                for g in face_of[a]:
+                    if _has(fv, g, w):
+                        held = True
+                        break
+                if not held:
+                    _add(lone[a], w)
+                    _add(lone[w], a)
+
+
+@njit(cache=True)
+def _alive_lone_edges(alive, lone):
+    """The lone edges between live vertices, each once, as an (E, 2) array."""
+    n = len(alive)
+    count = 0
+    for v in range(n):
+        if alive[v]:
+            for u in lone[v]:
+                if v < u:
+                    count += 1
+    out = np.empty((count, 2), np.int64)
+    count = 0
+    for v in range(n):
+        if alive[v]:
+            for u in lone[v]:
+                if v < u:
+                    out[count, 0], out[count, 1] = v, u
+                    count += 1
+    return out
+
+
+@njit(cache=True)
+def _collapse_loop(m, fv, lone_pairs, tips, quadrics, heap_cost, heap_a, heap_b, target, min_cos, limit):
+    """The collapse loop of ``simplify_medial_mesh`` (see there): cheapest first, link condition, turn test, and
+    with ``limit`` > 0 no collapse whose cost exceeds ``limit`` times the two vertices' summed plane weights (its
+    weighted mean squared move of the envelope); ``m`` (spheres), ``fv`` (faces), ``tips`` and the ``quadrics``
+    (A, b, c, plane weights, and the pull's w, b, c) are updated in place. Returns (alive, face_alive, lone edges,
+    collapses, link-rejected, turn-rejected, refused by the limit)."""
+    QA, Qb, Qc, Qw, Rw, Rb, Rc = quadrics
     n = m.shape[0]
     face_of = [[np.int64(x) for x in range(0)] for _ in range(n)]
     lone = [[np.int64(x) for x in range(0)] for _ in range(n)]
@@ -228,7 +309,7 @@ def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_
     heap = [(heap_cost[k], heap_a[k], heap_b[k], np.int64(0), np.int64(0)) for k in range(len(heap_cost))]
     heapq.heapify(heap)
     remaining = n
-    collapses = rejected = flipped = 0
+    collapses = rejected = flipped = over = 0
     while remaining > target and len(heap) > 0:
         cost, a, b, sa, sb = heapq.heappop(heap)
         if not (alive[a] and alive[b]) or stamp[a] != sa or stamp[b] != sb:
@@ -236,6 +317,12 @@ def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_
         if tips[a] and tips[b]:
             continue
         _, x = _best(QA, Qb, Qc, m, a, b)
+        if limit > 0:
+            # the planes' part of the cost (the weak pull to where the vertices were is no move of the envelope)
+            pull = (Rw[a] + Rw[b]) * (x @ x) - 2 * ((Rb[a] + Rb[b]) @ x) + Rc[a] + Rc[b]
+            if cost - pull > limit * (Qw[a] + Qw[b]):
+                over += 1  # dropped, not stopped: a neighbour's collapse pushes this edge again with its new cost
+                continue
         shared = [np.int64(f) for f in face_of[a] if _has(fv, f, b)]
         if not _link_ok(a, b, shared, face_of, lone, fv, n):
             rejected += 1
@@ -243,40 +330,14 @@ def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_
         if not _turns_ok(a, b, x, face_of, fv, m, min_cos):
             flipped += 1
             continue
-        # contract b into a
-        for f in shared:
-            face_alive[f] = False
-            for k in range(3):
-                _discard(face_of[fv[f, k]], f)
-        for f in face_of[b]:
-            for k in range(3):
-                if fv[f, k] == b:
-                    fv[f, k] = a
-            _add(face_of[a], f)
-        face_of[b].clear()
-        for w in lone[b]:
-            _discard(lone[w], b)
-            if w != a:
-                _add(lone[w], a)
-                _add(lone[a], w)
-        _discard(lone[a], b)
-        lone[b].clear()
-        # a face's side that no face holds any more stays as a lone edge
-        for f in shared:
-            for k in range(3):
-                w = fv[f, k]
-                if w != a and w != b:
-                    held = False
-                    for g in face_of[a]:
-                        if _has(fv, g, w):
-                            held = True
-                            break
-                    if not held:
-                        _add(lone[a], w)
-                        _add(lone[w], a)
+        _contract_connectivity(a, b, shared, face_of, lone, fv, face_alive)
         QA[a] += QA[b]
         Qb[a] += Qb[b]
         Qc[a] += Qc[b]
+        Qw[a] += Qw[b]
+        Rw[a] += Rw[b]
+        Rb[a] += Rb[b]
+        Rc[a] += Rc[b]
         m[a] = x
         tips[a] = tips[a] or tips[b]
         alive[b] = False
@@ -287,21 +348,8 @@ def _collapse_loop(m, fv, lone_pairs, tips, QA, Qb, Qc, heap_cost, heap_a, heap_
             i, j = (a, u) if a < u else (u, a)
             c, _ = _best(QA, Qb, Qc, m, i, j)
             heapq.heappush(heap, (c, i, j, stamp[i], stamp[j]))
-    count = 0
-    for v in range(n):
-        if alive[v]:
-            for u in lone[v]:
-                if v < u:
-                    count += 1
-    out = np.empty((count, 2), np.int64)
-    count = 0
-    for v in range(n):
-        if alive[v]:
-            for u in lone[v]:
-                if v < u:
-                    out[count, 0], out[count, 1] = v, u
-                    count += 1
-    return alive, face_alive, out, collapses, rejected, flipped
+    out = _alive_lone_edges(alive, lone)
+    return alive, face_alive, out, collapses, rejected, flipped, over
 
 
 @dataclass
@@ -311,6 +359,7 @@ class SimplifyResult:
     edges: np.ndarray  # lone edges
     faces: np.ndarray
     stats: dict = field(default_factory=dict)
+    fixed: np.ndarray | None = None  # the kept vertices that were fixed (or merged with a fixed one)
 
 
 def slab_planes(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -344,6 +393,9 @@ class _Quadrics:
         self.A = np.zeros((n, 4, 4))
         self.b = np.zeros((n, 4))
         self.c = np.zeros(n)
+        self.w = np.zeros(n)  # the summed weights of its planes: cost / w is a mean squared residual
+        # the weak pull to where each vertex was, apart (w |x - m|^2 summed): not a move of the envelope
+        self.pull_w, self.pull_b, self.pull_c = np.zeros(n), np.zeros((n, 4)), np.zeros(n)
 
     def add_planes(self, vertices: np.ndarray, n4: np.ndarray, d: np.ndarray, w: np.ndarray) -> None:
         """w (n4 . x - d)^2 added to each of ``vertices`` (K, j) for plane k."""
@@ -354,6 +406,7 @@ class _Quadrics:
             np.add.at(self.A, vertices[:, col], A)
             np.add.at(self.b, vertices[:, col], b)
             np.add.at(self.c, vertices[:, col], c)
+            np.add.at(self.w, vertices[:, col], w)
 
 
 def initial_quadrics(
@@ -398,11 +451,15 @@ def initial_quadrics(
             np.add.at(Q.A, v, P)
             np.add.at(Q.b, v, np.einsum("kij,kj->ki", P, p4))
             np.add.at(Q.c, v, np.einsum("ki,kij,kj->k", p4, P, p4))
+            np.add.at(Q.w, v, length2[good])
     # every vertex: a weak pull to where it is (keeps the 4x4 systems solvable); tips: a strong one
     w = regular * np.where(tips, 1e6, 1.0)
     Q.A += w[:, None, None] * np.eye(4)
     Q.b += w[:, None] * m
     Q.c += w * (m * m).sum(1)
+    Q.pull_w += w
+    Q.pull_b += w[:, None] * m
+    Q.pull_c += w * (m * m).sum(1)
     return Q
 
 
@@ -412,12 +469,16 @@ def simplify_medial_mesh(
     edges: np.ndarray,
     faces: np.ndarray,
     target_vertices: int,
-    boundary_weight: float = 1.0,
-    max_turn_deg: float = 60.0,
+    boundary_weight: float = _DEFAULT.boundary_weight,
+    max_turn_deg: float = _DEFAULT.max_turn_deg,
     tips: np.ndarray | None = None,
+    max_deviation: float = 0.0,
 ) -> SimplifyResult:
     """Collapse edges, cheapest SQEM first, until ``target_vertices`` remain or no allowed collapse is left.
-    ``tips``: a mask of vertices to keep in place (sharp-feature tips)."""
+    ``tips``: a mask of vertices to keep in place (sharp-feature tips). ``max_deviation`` > 0: no collapse that
+    moves the envelope by more than this, as the root mean square over the planes it merges (each face's two slab
+    sides weighted by its area, a rim's plane and a lone edge's line by their length squared): the MAT stays as
+    large as its shape needs, ``target_vertices`` a cap."""
     m = np.column_stack([np.asarray(vertices, np.float64), np.asarray(radii, np.float64)])
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
@@ -429,8 +490,18 @@ def simplify_medial_mesh(
     Q = initial_quadrics(m, faces, edges, boundary_weight, tips, 1e-3 * max(mean_area, 1e-12))
     cost, ea, eb = _initial_costs(Q, faces, edges)
     fv = faces.copy()
-    alive, face_alive, lone, collapses, rejected, flipped = _collapse_loop(
-        m, fv, edges, tips, Q.A, Q.b, Q.c, cost, ea, eb, int(target_vertices), math.cos(math.radians(max_turn_deg))
+    alive, face_alive, lone, collapses, rejected, flipped, over = _collapse_loop(
+        m,
+        fv,
+        edges,
+        tips,
+        (Q.A, Q.b, Q.c, Q.w, Q.pull_w, Q.pull_b, Q.pull_c),
+        cost,
+        ea,
+        eb,
+        int(target_vertices),
+        math.cos(math.radians(max_turn_deg)),
+        float(max_deviation) ** 2,
     )
     index = np.full(n, -1)
     index[alive] = np.arange(int(alive.sum()))
@@ -442,5 +513,6 @@ def simplify_medial_mesh(
         "collapses": int(collapses),
         "link_rejected": int(rejected),
         "turn_rejected": int(flipped),
+        "over_deviation": int(over),
     }
-    return SimplifyResult(m[alive, :3], m[alive, 3], out_edges, out_faces, stats)
+    return SimplifyResult(m[alive, :3], m[alive, 3], out_edges, out_faces, stats, tips[alive])

@@ -3,13 +3,14 @@
 
 from __future__ import annotations
 
-from qmdf.registry import DEGRADATIONS, SHAPES, STAGES, Registry
+from qmdf.registry import DEGRADATIONS, SHAPES, SHEET_STEPS, STAGES, Registry
 
 _BUILTIN_MODULES = (
     "qmdf.geometry.shapes",
     "qmdf.geometry.degradations",
     "qmdf.fields.backbones",
     "qmdf.fields.losses",
+    "qmdf.medial.steps",
     "qmdf.stages.sample",
     "qmdf.stages.train",
     "qmdf.stages.analytic_field",
@@ -45,4 +46,4 @@ def all_registries() -> tuple[Registry, ...]:
     from qmdf.fields.backbones import BACKBONES
     from qmdf.fields.losses import LOSSES
 
-    return (STAGES, DEGRADATIONS, SHAPES, BACKBONES, LOSSES)
+    return (STAGES, DEGRADATIONS, SHAPES, BACKBONES, LOSSES, SHEET_STEPS)

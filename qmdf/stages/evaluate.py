@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, NORMALIZATION, POINTS, TETS, file_digest
 from qmdf.schema import param
@@ -73,43 +72,20 @@ class Evaluate(Stage):
     }
     outputs = {"metrics": JSON}
     optional_outputs = {"reconstruction": MESH}  # when no earlier stage meshed it
-    # 2: the field's sign accuracy and metric inside; 3: the run's verdict (qmdf.verdict); 4: the MAT's structural
-    # defects (qmdf.geometry.mat_structure)
-    version = "4"
+    version = "4"  # docs/history.md lists what each version changed
 
     def fingerprint(self, ctx: StageContext) -> str:
-        return file_digest(self._reference_path(ctx)) if ctx.cfg.reference else ""
+        from qmdf.stages.evidence import reference_path
 
-    @staticmethod
-    def _reference_path(ctx: StageContext) -> Path:
-        from qmdf.stages.sample import resolve_input_path
-
-        return resolve_input_path(ctx.cfg.reference, ctx.settings.base_dir)
-
-    def _reference(self, ctx: StageContext) -> tuple[np.ndarray, np.ndarray | None, str]:
-        """The reference's vertices (or points) in the unit box, its faces (None for points), and what it is."""
-        if ctx.cfg.reference:
-            from qmdf.errors import QmdfError
-            from qmdf.geometry.io import load_geometry
-
-            if not ctx.has("normalization"):
-                raise QmdfError("evaluate.reference needs the run's normalization (a pipeline with the sample stage)")
-            ref = load_geometry(self._reference_path(ctx))
-            v = ctx.load("normalization").to_unit(ref.points.points)
-            return v, ref.faces, f"evaluate.reference ({Path(ctx.cfg.reference).name})"
-        if ctx.has("surface"):
-            ref = ctx.load("surface")
-            return np.asarray(ref.vertices), np.asarray(ref.faces), "input surface"
-        clean = ctx.load("clean_points") if ctx.has("clean_points") else ctx.load("points")  # before degradations
-        return clean.points, None, "input points"
+        return file_digest(reference_path(ctx)) if ctx.cfg.reference else ""
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.evaluate import score_mat
-        from qmdf.stages.evidence import evidence, structure
+        from qmdf.stages.evidence import evidence, reference, structure
         from qmdf.verdict import verdict
 
         mat = ctx.load("mat")
-        ref_v, ref_f, what = self._reference(ctx)
+        ref_v, ref_f, what = reference(ctx)
         picture = ctx.stage_dir / "reconstruction.png" if ctx.cfg.picture else None
         given = ctx.load("reconstruction") if ctx.has("reconstruction") else None
         metrics, recon = score_mat(

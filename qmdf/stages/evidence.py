@@ -1,7 +1,10 @@
-"""What the evaluate stage hands the run's verdict (``qmdf.verdict``), gathered from the run's artifacts: the
-MAT's structural defects against the data it was built from, and the evidence of every other check."""
+"""What the evaluate stage reads besides the MAT, gathered from the run's artifacts: the reference it scores
+against, and what it hands the run's verdict (``qmdf.verdict``): the MAT's structural defects against the data it
+was built from, and the evidence of every other check."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -48,3 +51,30 @@ def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, 
     if solid is not None and solid.is_watertight:
         e.input_volume, e.input_chi = float(abs(solid.volume)), solid_euler(np.asarray(solid.faces))
     return e
+
+
+def reference_path(ctx: StageContext) -> Path:
+    """``evaluate.reference`` resolved against the caller's directory."""
+    from qmdf.stages.sample import resolve_input_path
+
+    return resolve_input_path(ctx.cfg.reference, ctx.settings.base_dir)
+
+
+def reference(ctx: StageContext) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """What evaluate scores against: the reference's vertices (or points) in the unit box, its faces (None for
+    points), and what it is: ``evaluate.reference``, else the input surface, else the input points before
+    degradations."""
+    if ctx.cfg.reference:
+        from qmdf.errors import QmdfError
+        from qmdf.geometry.io import load_geometry
+
+        if not ctx.has("normalization"):
+            raise QmdfError("evaluate.reference needs the run's normalization (a pipeline with the sample stage)")
+        ref = load_geometry(reference_path(ctx))
+        v = ctx.load("normalization").to_unit(ref.points.points)
+        return v, ref.faces, f"evaluate.reference ({Path(ctx.cfg.reference).name})"
+    if ctx.has("surface"):
+        ref = ctx.load("surface")
+        return np.asarray(ref.vertices), np.asarray(ref.faces), "input surface"
+    clean = ctx.load("clean_points") if ctx.has("clean_points") else ctx.load("points")  # before degradations
+    return clean.points, None, "input points"

@@ -27,62 +27,16 @@ import numpy as np
 from qmdf.artifacts import FIELD, JSON, MAT, MESH, POINTS
 from qmdf.errors import QmdfError
 from qmdf.schema import param
-from qmdf.medial.features import field_feature_points, sample_segments, sharp_mesh_segments
+from qmdf.medial.features import FeatureSettings, field_feature_points, sample_segments, sharp_mesh_segments
 from qmdf.stage import Stage, StageContext, register_stage
 
 
 @dataclass
-class FeatureDetectConfig:
+class FeatureDetectConfig(FeatureSettings):
     source: str = param(
         "auto",
         choices=("auto", "mesh", "field"),
         doc="auto: the input mesh when there is one, else the field procedure",
-    )
-    dihedral_deg: float = param(
-        30.0, gt=0, lt=180, doc="mesh: an edge is sharp when its faces' normals turn by more than this"
-    )
-    convex_only: bool = param(
-        True, doc="mesh: keep convex sharp edges only (the medial axis never reaches a concave one)"
-    )
-    spacing: float = param(0.005, gt=0, doc="distance between feature samples along an edge (unit box)")
-    boundary_fold_deg: float = param(
-        150.0, gt=90, lt=180, doc="field: a membrane edge is on its boundary when its faces fold back by more than this"
-    )
-    max_radius: float = param(
-        0.03, gt=0, doc="field: boundary edges where the medial radius and MF are both below this"
-    )
-    offset: float = param(0.004, gt=0, doc="field: distance of the six axis-offset SDF-gradient samples")
-    march_steps: int = param(60, ge=1)
-    march_tol: float = param(5e-4, gt=0, doc="field: marching stops once |sdf| is below this")
-    qem_k: int = param(16, ge=3, doc="field: input points in each point's quadric")
-    qem_regularization: float = param(
-        1e-3, ge=0, doc="field: pull toward the marched point, so a flat neighbourhood stays put"
-    )
-    field_seeds: str = param(
-        "both",
-        choices=("membrane", "points", "both"),
-        doc="field: the paper's route from the first MAT's boundary, the input points' two-plane fits, or both",
-    )
-    plane_min_points: int = param(4, ge=3, doc="field: neighbours each of the two planes must hold")
-    plane_tolerance: float = param(
-        0.05,
-        gt=0,
-        doc="field: a neighbour farther than this fraction of the neighbourhood's "
-        "radius from both planes is no part of them (a corner's third face, noise)",
-    )
-    plane_normal_deg: float = param(
-        45.0, gt=0, lt=90, doc="field: nor is one whose SDF gradient turns by more than this from the plane's normal"
-    )
-    arc_ratio: float = param(
-        0.5,
-        ge=0,
-        doc="field: the two planes must fit the neighbours better than one circular "
-        "arc across the edge by this factor (RMS), or it is a curved patch; 0: no such test",
-    )
-    face_normals: bool = param(
-        True,
-        doc="field: feature points carry their two planes' mean normal (feature_retrain's "
-        "bisector samples); false: the paper's feature points alone",
     )
 
 
@@ -136,24 +90,4 @@ class FeatureDetect(Stage):
                     else ": put it after train in pipeline.stages"
                 )
             )
-        return field_feature_points(
-            ctx.load("field"),
-            points,
-            ctx.load("mat") if need_mat else None,
-            seeds=cfg.field_seeds,
-            spacing=cfg.spacing,
-            boundary_fold_deg=cfg.boundary_fold_deg,
-            max_radius=cfg.max_radius,
-            offset=cfg.offset,
-            march_steps=cfg.march_steps,
-            march_tol=cfg.march_tol,
-            qem_k=cfg.qem_k,
-            qem_regularization=cfg.qem_regularization,
-            dihedral_deg=cfg.dihedral_deg,
-            plane_min_points=cfg.plane_min_points,
-            plane_tolerance=cfg.plane_tolerance,
-            plane_normal_deg=cfg.plane_normal_deg,
-            arc_ratio=cfg.arc_ratio,
-            face_normals=cfg.face_normals,
-            stats=stats,
-        )
+        return field_feature_points(ctx.load("field"), points, ctx.load("mat") if need_mat else None, cfg, stats)

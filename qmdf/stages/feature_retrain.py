@@ -4,8 +4,8 @@ the medial field to zero there (the paper sums mf, a radius; |.| because our hea
 medial axis reaches the sharp edges. Not in the paper: behind each convex feature whose two faces' normals
 are known (from a mesh, or from feature_detect's two-plane fits on a point cloud) the sheet is known too
 (its bisector, as far as the input points allow, ``qmdf.geometry.bisectors``), and sdf = -r, mf = r are
-asked there. The training settings (backbone,
-losses, batches) are ``train``'s; put cover, contract and export again after this stage: the earlier ones
+asked there. The training settings (model, supervision, losses, batches, trainer) are ``train``'s, and so is the
+fit (``qmdf.stages.training.fit_field``); put cover, contract and export again after this stage: the earlier ones
 keep the result before enhancement for comparison."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from qmdf.stage import Stage, StageContext, register_stage
 @dataclass
 class FeatureRetrainConfig:
     steps: int = param(500, ge=1, doc="more steps from the trained field")
-    lr: float = param(3e-4, gt=0, doc="a gentler start than train.lr: the field is already fitted")
+    lr: float = param(3e-4, gt=0, doc="a gentler start than train.optim.lr: the field is already fitted")
     lr_final: float = param(1e-5, gt=0)
     weight_sdf: float = param(3000.0, ge=0, doc="L_sharp1 = mean |sdf| at the feature points (like the surface term)")
     weight_mf: float = param(100.0, ge=0, doc="L_sharp2 = mean |mf| at the feature points")
@@ -50,19 +50,14 @@ class FeatureRetrain(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON, "point_surface": MESH}
     outputs = {"field": FIELD, "training": JSON}
     config_deps = ("seed", "train")
-    # 2: bisector walks checked against the data's distance and inside; 3: the route's record kept; 4: Adam fused;
-    # 5: the encoding's compiled backward, mf of the volume samples only
-    version = "5"
+    version = "6"  # docs/history.md lists what each version changed; 6: train's fit (fields seeded alike)
 
     def run(self, ctx: StageContext) -> None:
         import dataclasses
 
         from qmdf.fields.field import Field
-        from qmdf.fields.module import FieldModule, build_net, build_terms
         from qmdf.geometry.bisectors import bisector_samples
-        from qmdf.fields.data import StepSampler
-        from qmdf.fields.quality import axis_q_stats
-        from qmdf.stages.train import fit, route_losses, supervise
+        from qmdf.stages.training import fit_field, route_losses, supervise
 
         cfg: FeatureRetrainConfig = ctx.cfg
         field = ctx.load("field")
@@ -81,48 +76,30 @@ class FeatureRetrain(Stage):
             medial, radii = bisector_samples(
                 feats, features.normals, points, cfg.bisector_length, cfg.bisector_spacing, **_walk_checks(ctx, field)
             )
-        train_cfg = dataclasses.replace(
-            ctx.sections["train"], lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps, picture=False
-        )
-        sup = supervise(ctx, train_cfg)
-        sampler = StepSampler(sup, train_cfg.surface_batch, train_cfg.volume_batch, ctx.seed)
+        train = ctx.sections["train"]
+        optim = dataclasses.replace(train.optim, lr=cfg.lr, lr_final=cfg.lr_final, steps=cfg.steps)
+        sup = supervise(ctx, train.supervision)
         # the paper's L_sharp1 / L_sharp2 and the bisectors' medial samples, beside the route's own terms
         losses = {
-            **route_losses(train_cfg, sup.route),
+            **route_losses(train.optim, sup.route),
             "sharp_sdf": {"weight": cfg.weight_sdf},
             "sharp_mf": {"weight": cfg.weight_mf},
             "sharp_medial": {"weight": cfg.bisector_weight, "batch": cfg.bisector_batch},
         }
-        module = FieldModule(
-            build_net(field.meta["backbone"], field.meta["backbone_params"]),
-            build_terms(losses, train_cfg.medial_field),
-            sampler,
-            steps=cfg.steps,
-            lr=cfg.lr,
-            lr_final=cfg.lr_final,
-            medial_field=train_cfg.medial_field,
-            ridge_every=train_cfg.ridge_every,
-            ridge_start=train_cfg.ridge_start,
-            anchors={"feature_points": feats, "medial_points": medial, "medial_radii": radii},
-        )
-        module.net.load_state_dict(field.net.state_dict())
-        device = fit(ctx, train_cfg, module, cfg.steps)
-        net = module.net.to(device)  # queried where it trained, as in train
-        axis = axis_q_stats(sampler.to(device), net) if sampler.has_rays and train_cfg.medial_field else None
-        out = Field(net, ctx.load("normalization"), field.meta, device=device)
-        out.save(ctx.path("field"))
+        anchors = {"feature_points": feats, "medial_points": medial, "medial_radii": radii}
+        out, fitted = fit_field(ctx, train, sup, losses, optim, start=field, anchors=anchors)
         before, after = field.evaluate(feats), out.evaluate(feats)
         stats = {
             "steps": cfg.steps,
             "feature_points": int(len(feats)),
             "bisector_samples": int(len(medial)),
-            "device": device,
+            "device": fitted["device"],
             "feature_abs_sdf_before": float(abs(before["sdf"]).mean()),
             "feature_abs_sdf_after": float(abs(after["sdf"]).mean()),
             "feature_mf_before": float(abs(before["mf"]).mean()),
             "feature_mf_after": float(abs(after["mf"]).mean()),
-            "history": module.history,
-            "axis_q": axis,
+            "history": fitted["history"],
+            "axis_q": fitted["axis_q"],
             "supervision": sup.stats,  # as train's: the route's record (a cloud's Poisson surface's topology)
         }
         ctx.save("training", stats)

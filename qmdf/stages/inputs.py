@@ -10,7 +10,7 @@ from qmdf.stage import StageContext
 
 def input_data(ctx: StageContext):
     """(mesh, points) the radii may be measured to: the mesh of an undegraded mesh input, else a cloud's closed
-    Poisson surface that train handed on (``train.point_surface_as_data``), else the input points (what the
+    Poisson surface that train handed on (``train.supervision.point_surface_as_data``), else the input points (what the
     method saw, never the clean reference of a simulated scan)."""
     return radius_data(
         ctx.load("input_info") if ctx.has("input_info") else {},

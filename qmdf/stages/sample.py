@@ -31,16 +31,7 @@ class SampleConfig:
     )
 
     def check(self) -> list[tuple[str, str]]:
-        problems: list[tuple[str, str]] = []
-        for name, params in self.degradations.items():
-            if name not in DEGRADATIONS:
-                problems.append((f"degradations.{name}", DEGRADATIONS.why_missing(name)))
-                continue
-            entry = DEGRADATIONS.get(name)
-            problems += [
-                (p.key, p.message) for p in schema.check_section(entry.config, params or {}, f"degradations.{name}")
-            ]
-        return problems
+        return schema.check_registered(self.degradations, DEGRADATIONS, "degradations")
 
 
 def resolve_input_path(path: str, base_dir: Path) -> Path:
