@@ -135,3 +135,24 @@ def test_no_import_circles():
 
 def test_the_report_reads_the_papers_table_without_the_benchmarks():
     assert not any(_within(i, ("qmdf.bench",)) for i in MODULES["qmdf.report"])
+
+
+def _functions(path: Path):
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.FunctionDef):
+            a = node.args
+            count = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) + bool(a.vararg) + bool(a.kwarg)
+            count -= bool(a.args) and a.args[0].arg in ("self", "cls")
+            yield node.name, count, node.end_lineno - node.lineno + 1
+
+
+def test_the_house_stays_small():
+    """Every stage module at most 150 lines, no library function with more than 12 parameters (settings travel
+    as one dataclass), no function in qmdf/medial over 80 lines."""
+    stages = {p.name: len(p.read_text().splitlines()) for p in (PACKAGE / "stages").glob("*.py")}
+    assert {k: n for k, n in stages.items() if n > 150} == {}
+    library = [p for prefix in LIBRARY for p in (PACKAGE / prefix.split(".")[1]).rglob("*.py")]
+    wide = {f"{p.name}:{name}": n for p in library for name, n, _ in _functions(p) if n > 12}
+    assert wide == {}
+    long = {f"{p.name}:{name}": n for p in (PACKAGE / "medial").glob("*.py") for name, _, n in _functions(p) if n > 80}
+    assert long == {}

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from qmdf.geometry.metrics import edges_off_polygons
+from qmdf.medial.coverage import keeps
 from qmdf.medial.thinning import Collapse, CubicalComplex, cubical_euler
 from qmdf.schema import param
 
@@ -423,8 +424,13 @@ def pick_sheet(candidates: list, chamfer, target_chi: int | None = None) -> tupl
         }
         for mat, stats in candidates
     ]
-    ranks = [(not r["compact"], target_chi is not None and r["chi"] != target_chi, r["cd"]) for r in rows]
-    return min(range(len(rows)), key=ranks.__getitem__), rows
+    # compact first, then the input's chi; between equals the one keep-if-better rule on the fit
+    ranks = [(not r["compact"], target_chi is not None and r["chi"] != target_chi) for r in rows]
+    kept = 0
+    for i in range(1, len(rows)):
+        if ranks[i] < ranks[kept] or (ranks[i] == ranks[kept] and keeps(rows[i]["cd"], rows[kept]["cd"])):
+            kept = i
+    return kept, rows
 
 
 def refined_sheet(
