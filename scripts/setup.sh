@@ -29,5 +29,7 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   fi
 fi
 "${PIP[@]}" install -e ".[dev]"
+# compile the numba kernels now rather than inside the user's first run (qmdf/warmup.py)
+"$VENV/bin/python" -m qmdf.warmup || true
 touch "$STAMP"
 echo "qmdf is installed in $VENV (torch $("$VENV/bin/python" -c 'import torch; print(torch.__version__)'))"
