@@ -453,13 +453,14 @@ def refined_sheet(
 
     from qmdf.medial.refinement import refine
 
+    solid = prepared_solid(grid, evaluate, settings, target_chi)  # the same for every off-axis rule
+    if solid.stats["level"]:
+        data.log.log(*describe_level(solid.stats["level"]))
+
     def build(off_axis: float):
         data.log.info("sheet: collapsing the covering with off_axis %s", off_axis)
-        mat, stats = thinned_sheet(
-            grid, evaluate, *membrane, radii_of, dataclasses.replace(settings, off_axis=off_axis), target_chi
-        )
-        if stats["level"]:
-            data.log.log(*describe_level(stats["level"]))
+        rule = dataclasses.replace(settings, off_axis=off_axis)
+        mat, stats = thinned_sheet(grid, evaluate, *membrane, radii_of, rule, target_chi, solid)
         stats["before"] = sheet_counts(mat)
         mat, stats["steps"], stats["cd"] = refine(mat, data, steps)
         stats.update(compact=data.is_compact(len(mat.vertices)), after=sheet_counts(mat))
@@ -507,22 +508,26 @@ def describe_level(level: dict) -> tuple[int, str]:
     )
 
 
-def thinned_sheet(
-    grid: dict,
-    evaluate,
-    membrane_vertices: np.ndarray,
-    membrane_faces: np.ndarray,
-    radii_of,
-    settings: CollapseSettings = CollapseSettings(),
-    target_chi: int | None = None,
-):
-    """The single-layer MAT of a covering before refinement: its grid (``inside``, ``lo``, ``spacing``, ``eps``,
-    as ``covering.build_covering`` gives it) on every k-th node within ``settings.max_nodes`` (``node_stride``),
-    its solid prepared (``_solid``: specks dropped, voids filled, with ``target_chi`` the level or the growth of
-    the input's topology), q and sdf from ``evaluate(points)``, collapsed onto the membrane (``single_sheet``),
-    radii from ``radii_of(vertices)``. Returns the ``refinement.MAT`` and its stats."""
-    from qmdf.medial.refinement import MAT
+@dataclass
+class PreparedSolid:
+    """The grid nodes a sheet collapses from, with q at them (inf outside), the box they lie in and the level
+    they lie below: what every off-axis rule's sheet of one covering shares (``prepared_solid``)."""
 
+    inside: np.ndarray
+    q: np.ndarray
+    lo: np.ndarray
+    spacing: np.ndarray
+    eps: float
+    stats: dict
+
+
+def prepared_solid(
+    grid: dict, evaluate, settings: CollapseSettings = CollapseSettings(), target_chi: int | None = None
+) -> PreparedSolid:
+    """A covering's grid (``inside``, ``lo``, ``spacing``, ``eps``, as ``covering.build_covering`` gives it) on
+    every k-th node within ``settings.max_nodes`` (``node_stride``), its solid prepared (``_solid``: specks
+    dropped, voids filled, with ``target_chi`` the level or the growth of the input's topology), q and sdf from
+    ``evaluate(points)``, each node evaluated once."""
     stride = node_stride(grid["inside"], settings.max_nodes)
     spacing = np.asarray(grid["spacing"]) * stride
     inside = keep_large_pieces(grid["inside"][::stride, ::stride, ::stride], settings.speck_fraction)
@@ -546,11 +551,40 @@ def thinned_sheet(
     field_at(np.argwhere(inside))
     inside, eps, stats = _solid(inside, q, float(grid["eps"]), field_at, settings, target_chi)
     field_at(np.argwhere(inside))  # the filled voids' nodes too
-    q = np.where(inside, q, np.inf)
-    sheet = single_sheet(inside, q, lo, spacing, membrane_vertices, membrane_faces, eps, settings)
+    stats.update(nodes_inside=int(inside.sum()), grid_stride=stride)
+    return PreparedSolid(inside, np.where(inside, q, np.inf), lo, spacing, eps, stats)
+
+
+def thinned_sheet(
+    grid: dict,
+    evaluate,
+    membrane_vertices: np.ndarray,
+    membrane_faces: np.ndarray,
+    radii_of,
+    settings: CollapseSettings = CollapseSettings(),
+    target_chi: int | None = None,
+    solid: PreparedSolid | None = None,
+):
+    """The single-layer MAT of a covering before refinement: its ``prepared_solid`` (given, or made here from
+    ``grid``, ``evaluate``, ``settings`` and ``target_chi``) collapsed onto the membrane under ``settings``'
+    off-axis rule (``single_sheet``), radii from ``radii_of(vertices)``. Returns the ``refinement.MAT`` and its
+    stats."""
+    from qmdf.medial.refinement import MAT
+
+    solid = solid if solid is not None else prepared_solid(grid, evaluate, settings, target_chi)
+    # copies: the collapse works in place, and the solid serves each off-axis rule
+    sheet = single_sheet(
+        solid.inside.copy(),
+        solid.q.copy(),
+        solid.lo,
+        solid.spacing,
+        membrane_vertices,
+        membrane_faces,
+        solid.eps,
+        settings,
+    )
     radii = radii_of(sheet.vertices)
-    stats.update(nodes_inside=int(inside.sum()), grid_stride=stride, collapse=sheet.stats)
-    return MAT(sheet.vertices, radii, sheet.edges, sheet.faces), stats
+    return MAT(sheet.vertices, radii, sheet.edges, sheet.faces), {**solid.stats, "collapse": sheet.stats}
 
 
 def _solid(inside, q, eps: float, field_at, settings: CollapseSettings, target_chi: int | None):
