@@ -180,6 +180,17 @@ def check_section(schema: type, node: Any, path: str) -> list[Problem]:
     return problems
 
 
+def registered_defaults(registry: Any) -> dict[str, dict]:
+    """Every registered component's default settings by name (a table's defaults, so that ``NAME.key=value`` always
+    has a place)."""
+    return {e.name: defaults_of(e.config) for e in registry.entries() if e.config is not None}
+
+
+def registered_schemas(registry: Any) -> dict[str, type]:
+    """Every registered component's settings dataclass by name (``param(schemas=...)``, for listings)."""
+    return {e.name: e.config for e in registry.entries() if e.config is not None}
+
+
 def check_registered(table: Mapping[str, Any], registry: Any, path: str) -> list[tuple[str, str]]:
     """Problems of a name -> settings table whose names are ``registry``'s components (a degradation's, a
     backbone's, a loss's, a sheet step's): each unknown name, and each entry against its component's schema; keys

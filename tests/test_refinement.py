@@ -132,7 +132,7 @@ def test_the_library_runs_with_the_settings_python_m_qmdf_runs():
     from qmdf.medial.covering import build_covering
     from qmdf.medial.envelope_fit import fit_envelope_to_samples
     from qmdf.medial.rims import extend_rims
-    from qmdf.medial.sheet import CollapseSettings, single_sheet, thinned_sheet
+    from qmdf.medial.sheet import CollapseSettings, prepared_solid, single_sheet, thinned_sheet
     from qmdf.medial.simplify import simplify_medial_mesh
     from qmdf.schema import defaults_of
     from qmdf.stages.cover import CoverConfig
@@ -145,6 +145,7 @@ def test_the_library_runs_with_the_settings_python_m_qmdf_runs():
     expert = {k: v for k, v in sheet["expert"].items() if k not in ("compact_slack", "tip_reach")}
     assert defaults_of(type(_default(thinned_sheet, "settings"))) == expert
     assert _default(single_sheet, "settings") == CollapseSettings() == _default(thinned_sheet, "settings")
+    assert _default(prepared_solid, "settings") == CollapseSettings()
     step = sheet["step"]
     # (simplify's deviation is a share of sheet.tolerance, which the step turns into the library's max_deviation)
     shared = ("boundary_weight", "max_turn_deg")

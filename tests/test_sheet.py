@@ -294,7 +294,7 @@ def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
     """A disc's covering six node layers thick with an island of nodes left out in its middle (q above eps
     there, as around a junction of sheets): kept, the collapse would close a pocket around it (chi 2). The void
     is filled where the sdf reads inside all over it; where the shape is hollow there (sdf > 0), it stays."""
-    from qmdf.medial.sheet import fill_voids, sheet_counts, thinned_sheet
+    from qmdf.medial.sheet import fill_voids, sheet_counts
 
     q = np.abs(Z) + np.maximum(R - 0.4, 0)
     island = np.sqrt(X**2 + Y**2 + Z**2) < H  # the 2 x 2 x 2 nodes around the grid's middle
@@ -305,7 +305,7 @@ def test_a_void_of_the_covering_is_filled_unless_the_shape_has_it(hollow):
     assert stats["voids"] == 1 and stats["filled"] == (0 if hollow else 1)
     assert np.array_equal(filled, inside | (island & (not hollow)))
     v, f = _disc_membrane(0.4)
-    mat, stats = thinned_sheet(
+    mat, stats = _thin(
         {"inside": inside, "lo": LO, "spacing": SPACING, "eps": 0.06},
         lambda p: {"q": np.abs(p[:, 2]) + np.maximum(np.hypot(p[:, 0], p[:, 1]) - 0.4, 0), "sdf": sdf_at(p)},
         v,
@@ -334,6 +334,14 @@ def test_cubical_euler_against_known_solids_and_the_complex_itself():
         assert cubical_euler(m) == _read_complex(cells, np.zeros(3, np.int64)).euler
 
 
+def _thin(grid, evaluate, v, f, radii_of, settings=None, target_chi=None):
+    """``thinned_sheet`` of a covering's grid, its solid prepared first (``prepared_solid``)."""
+    from qmdf.medial.sheet import CollapseSettings, prepared_solid, thinned_sheet
+
+    settings = settings or CollapseSettings()
+    return thinned_sheet(prepared_solid(grid, evaluate, settings, target_chi), v, f, radii_of, settings)
+
+
 def _ring_with_bar():
     """q of a circle (radius 0.3 in z = 0) and of a bar across its hole whose valley reads 0.04: the nodes below
     a level under 0.04 are a ring (chi 0), above it a theta (chi -1)."""
@@ -343,7 +351,7 @@ def _ring_with_bar():
 
 
 def _ring_with_bar_sheet_args(q):
-    """``thinned_sheet``'s first five arguments for ``_ring_with_bar``'s covering at 0.07, placed on a thin
+    """``_thin``'s first five arguments for ``_ring_with_bar``'s covering at 0.07, placed on a thin
     ring's surface."""
     tube = trimesh.creation.torus(major_radius=0.3, minor_radius=1e-4, major_sections=128, minor_sections=6)
     grid = {"inside": q < 0.07, "lo": LO, "spacing": SPACING, "eps": 0.07}
@@ -370,13 +378,13 @@ def test_the_level_with_the_shapes_topology_is_the_highest_one_below_a_bridge():
 
 
 def test_the_sheet_takes_the_level_of_the_shapes_topology():
-    from qmdf.medial.sheet import sheet_counts, thinned_sheet
+    from qmdf.medial.sheet import sheet_counts
 
     q = _ring_with_bar()
     args = _ring_with_bar_sheet_args(q)
-    plain_mat, plain = thinned_sheet(*args)
+    plain_mat, plain = _thin(*args)
     assert sheet_counts(plain_mat)["chi"] == -1 and plain["level"] is None
-    matched_mat, matched = thinned_sheet(*args, target_chi=0)
+    matched_mat, matched = _thin(*args, target_chi=0)
     assert sheet_counts(matched_mat)["chi"] == 0 and matched["level"]["eps"] < 0.04 + H
     assert len(matched_mat.faces) == 0  # the ring's polyline, the bar gone
 
@@ -393,13 +401,13 @@ def test_the_solid_euler_characteristic_of_a_closed_mesh_and_none_of_an_open_one
 
 
 def test_where_no_level_has_the_shapes_topology_the_solid_is_grown_with_it():
-    from qmdf.medial.sheet import CollapseSettings, sheet_counts, thinned_sheet
+    from qmdf.medial.sheet import CollapseSettings, sheet_counts
 
     q = _ring_with_bar()  # every level from 0.07 down to 0.021 has chi -1 or 0, none the ball's 1
     args = _ring_with_bar_sheet_args(q)
-    kept_mat, kept = thinned_sheet(*args, CollapseSettings(grow_topology=False), target_chi=1)
+    kept_mat, kept = _thin(*args, CollapseSettings(grow_topology=False), target_chi=1)
     assert kept["level"]["eps"] is None and sheet_counts(kept_mat)["chi"] == -1  # the covering's nodes as they are
-    mat, grown = thinned_sheet(*args, target_chi=1)
+    mat, grown = _thin(*args, target_chi=1)
     assert sheet_counts(mat)["chi"] == 1 and grown["level"]["grown"]["chi"] == 1
     assert grown["level"]["grown"]["refused"] > 0
     assert len(mat.faces) == 0  # a tree of polylines: both loops cut

@@ -18,11 +18,6 @@ def _backbones():
     return BACKBONES
 
 
-def _default_backbones() -> dict:
-    """Every registered backbone's settings, so ``train.model.backbones.NAME.key=value`` always has a place."""
-    return {e.name: schema.defaults_of(e.config) for e in _backbones().entries()}
-
-
 def _default_losses() -> dict:
     from qmdf.fields.losses import default_losses
 
@@ -38,7 +33,7 @@ def _paper_losses() -> dict:
 def _losses():
     from qmdf.fields.losses import LOSSES
 
-    return {e.name: e.config for e in LOSSES.entries()}
+    return LOSSES
 
 
 @dataclass
@@ -49,9 +44,9 @@ class ModelSettings:
         "0.046-thick walls with |grad sdf| 1.00 inside where the 128x4 MLP reached 0.16-0.55 (same 2,000 steps)",
     )
     backbones: dict[str, Any] = param(
-        factory=_default_backbones,
+        factory=lambda: schema.registered_defaults(_backbones()),
         doc="each backbone's settings; the chosen one is used",
-        schemas=lambda: {e.name: e.config for e in _backbones().entries()},
+        schemas=lambda: schema.registered_schemas(_backbones()),
     )
     medial_field: bool = param(True, doc="train the medial field too; false: the paper's 'w/o MF' ablation")
 
@@ -158,7 +153,7 @@ class OptimSettings:
     ridge_start: float = param(0.3, ge=0, le=1, doc="share of the steps before the first ridge update")
     losses: dict[str, Any] = param(
         factory=_default_losses,
-        schemas=_losses,
+        schemas=lambda: schema.registered_schemas(_losses()),
         doc="loss name -> {weight, ...} for the supervised routes "
         "(mesh, oriented_points, raw_points); weight 0 disables",
     )

@@ -23,8 +23,8 @@ from qmdf.schema import param
 
 @dataclass
 class CollapseSettings:
-    """How the covering's solid collapses to one layer (``thinned_sheet``): the expert settings of the sheet
-    stage (``sheet.expert``), each with what it was measured on."""
+    """How the covering's solid collapses to one layer (``prepared_solid``, ``thinned_sheet``): the expert
+    settings of the sheet stage (``sheet.expert``), each with what it was measured on."""
 
     valley_share: float = param(
         0.5,
@@ -444,7 +444,8 @@ def refined_sheet(
     target_chi: int | None = None,
     off_axis_wide: float = 0.0,
 ):
-    """The sheet of a covering (``thinned_sheet`` on the ``membrane``'s (vertices, faces)), refined by ``steps``
+    """The sheet of a covering (its ``prepared_solid`` from ``grid``, ``evaluate``, ``settings`` and
+    ``target_chi``, then ``thinned_sheet`` on the ``membrane``'s (vertices, faces)), refined by ``steps``
     on ``data`` (``refinement.refine``); with ``off_axis_wide`` (not 0, not ``settings.off_axis``) built twice,
     the second time under that off-axis rule, the better kept (``pick_sheet``). Returns the ``refinement.MAT`` and
     its stats: the collapse's, ``before`` and ``after`` refinement (``sheet_counts``), ``steps`` (each step's
@@ -460,7 +461,7 @@ def refined_sheet(
     def build(off_axis: float):
         data.log.info("sheet: collapsing the covering with off_axis %s", off_axis)
         rule = dataclasses.replace(settings, off_axis=off_axis)
-        mat, stats = thinned_sheet(grid, evaluate, *membrane, radii_of, rule, target_chi, solid)
+        mat, stats = thinned_sheet(solid, *membrane, radii_of, rule)
         stats["before"] = sheet_counts(mat)
         mat, stats["steps"], stats["cd"] = refine(mat, data, steps)
         stats.update(compact=data.is_compact(len(mat.vertices)), after=sheet_counts(mat))
@@ -556,33 +557,20 @@ def prepared_solid(
 
 
 def thinned_sheet(
-    grid: dict,
-    evaluate,
+    solid: PreparedSolid,
     membrane_vertices: np.ndarray,
     membrane_faces: np.ndarray,
     radii_of,
     settings: CollapseSettings = CollapseSettings(),
-    target_chi: int | None = None,
-    solid: PreparedSolid | None = None,
 ):
-    """The single-layer MAT of a covering before refinement: its ``prepared_solid`` (given, or made here from
-    ``grid``, ``evaluate``, ``settings`` and ``target_chi``) collapsed onto the membrane under ``settings``'
-    off-axis rule (``single_sheet``), radii from ``radii_of(vertices)``. Returns the ``refinement.MAT`` and its
-    stats."""
+    """The single-layer MAT of a covering before refinement: its ``prepared_solid`` collapsed onto the membrane
+    under ``settings``' off-axis rule (``single_sheet``), radii from ``radii_of(vertices)``. Returns the
+    ``refinement.MAT`` and its stats."""
     from qmdf.medial.refinement import MAT
 
-    solid = solid if solid is not None else prepared_solid(grid, evaluate, settings, target_chi)
-    # copies: the collapse works in place, and the solid serves each off-axis rule
-    sheet = single_sheet(
-        solid.inside.copy(),
-        solid.q.copy(),
-        solid.lo,
-        solid.spacing,
-        membrane_vertices,
-        membrane_faces,
-        solid.eps,
-        settings,
-    )
+    # copies: the collapse works in place, and one solid serves each off-axis rule
+    inside, q = solid.inside.copy(), solid.q.copy()
+    sheet = single_sheet(inside, q, solid.lo, solid.spacing, membrane_vertices, membrane_faces, solid.eps, settings)
     radii = radii_of(sheet.vertices)
     return MAT(sheet.vertices, radii, sheet.edges, sheet.faces), {**solid.stats, "collapse": sheet.stats}
 

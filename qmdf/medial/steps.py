@@ -13,9 +13,9 @@ from qmdf.medial.coverage import CoverageSettings, refine_coverage
 from qmdf.medial.envelope_fit import FitSettings, fit_envelope_to_samples
 from qmdf.medial.radii import centre_on_data, data_distance
 from qmdf.medial.refinement import MAT, SheetData, SheetStep, sheet_step
-from qmdf.registry import SHEET_STEPS
 from qmdf.medial.rims import RimSettings, extend_rims
 from qmdf.medial.simplify import SimplifySettings, simplify_medial_mesh
+from qmdf.registry import SHEET_STEPS
 
 
 @dataclass

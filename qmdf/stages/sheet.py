@@ -24,11 +24,6 @@ from qmdf.stages.inputs import input_data, input_surface_balls, known_solid_eule
 DEFAULT_STEPS = ("simplify", "centre", "coverage", "rims", "fit")
 
 
-def _default_step_settings() -> dict:
-    """Every registered step's settings, so ``sheet.step.NAME.key=value`` always has a place."""
-    return {e.name: schema.defaults_of(e.config) for e in SHEET_STEPS.entries()}
-
-
 @dataclass
 class SheetExpert(CollapseSettings):
     compact_slack: float = param(
@@ -62,9 +57,9 @@ class SheetConfig:
         doc="the refinement steps in order (python -m qmdf.plugins lists them; a plugin adds its own)",
     )
     step: dict[str, Any] = param(
-        factory=_default_step_settings,
+        factory=lambda: schema.registered_defaults(SHEET_STEPS),
         doc="each step's settings",
-        schemas=lambda: {e.name: e.config for e in SHEET_STEPS.entries()},
+        schemas=lambda: schema.registered_schemas(SHEET_STEPS),
     )
     expert: SheetExpert = param(factory=SheetExpert, doc="the collapse's tuned constants (docs/configuration.md)")
 

@@ -123,17 +123,17 @@ def lightning_logger(spec: dict[str, Any], save_dir) -> tuple[Any, Any]:
     """Lightning's logger from ``train.trainer.logger`` (``_target_``: its class; the other keys: its arguments;
     ``save_dir``: the stage's folder) and what to call when the fit ends (wandb: close its run, one per job also
     in a multirun; offline without WANDB_API_KEY)."""
-    import importlib
     import os
 
+    from hydra.utils import get_class
+
     target = spec.get("_target_", "")
-    module_name, _, name = target.rpartition(".")
     try:
-        cls = getattr(importlib.import_module(module_name), name)
-    except (ImportError, AttributeError, ValueError) as exc:
+        cls = get_class(target)
+    except Exception as exc:  # Hydra raises ImportError or ValueError, wrapped differently across versions
         raise QmdfError(f"train.trainer.logger._target_: cannot import '{target}' ({exc})") from None
     kwargs = {k: v for k, v in spec.items() if k != "_target_"}
-    if name == "WandbLogger":
+    if cls.__name__ == "WandbLogger":
         import wandb
 
         kwargs.setdefault("project", "qmdf")
