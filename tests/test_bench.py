@@ -160,6 +160,7 @@ def test_bench_speed_times_every_stage_beside_its_floor(cli):
         assert s["floor_s"] > 0 and s["wall_s"] > 0 and s["cpu_s"] >= 0 and s["peak_mb"] > 0 and s["floor"], name
     assert "the membrane to" in stages["sheet"]["floor"]
     assert "one marching-cubes pass over 32^3" in proc.stdout and "ratio" in proc.stdout
+    assert row["poles_s"] > 0 and row["poles_samples"] > 100 and "the Voronoi poles of the same" in proc.stdout
 
 
 @pytest.mark.slow
@@ -190,3 +191,41 @@ def test_bench_faults_counts_what_survives(cli):
         and fuzz["read"] + fuzz["refused"] == 35 == sum(fuzz["error_classes"].values()) + fuzz["read"]
     )
     assert report["multirun"]["complete"] == 2 and report["multirun"]["artifacts_not_matching_cache"] == 0
+
+
+def test_every_cloud_of_bench_clouds_is_drawn_by_the_sample_stage(compose_cfg):
+    """``bench clouds --pipeline`` draws each cloud with the sample stage's own degradations, normals dropped."""
+    from qmdf import config as cfgmod
+    from qmdf.bench.clouds import CLOUDS, degradation_overrides
+
+    for kind, degradations in CLOUDS.items():
+        cfg = compose_cfg(*degradation_overrides(kind))
+        assert cfgmod.validate(cfg) == [], kind
+        drawn = {name: dict(params) for name, params in cfg.sample.degradations.items()}
+        assert drawn.pop("drop_normals") == {"enabled": True}
+        assert {name: {k: drawn[name][k] for k in params} for name, params in degradations.items()} == degradations
+        assert set(drawn) == set(degradations), kind
+
+
+@pytest.mark.slow
+def test_bench_clouds_runs_the_pipeline_on_a_raw_cloud(cli):
+    proc = cli(
+        "clouds",
+        "--pipeline",
+        "--only",
+        "teacup",
+        "--clouds",
+        "sparse_1000",
+        "--no-mesh-route",
+        "--data",
+        str(cli.cwd / "no_data"),
+        "--json",
+        "rows.json",
+        "+debug=fast",
+        module="qmdf.bench",
+    )
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads((cli.cwd / "rows.json").read_text())
+    assert row["source"] == "teacup" and row["cloud"] == "sparse_1000" and row["route"] == "raw_points"
+    assert row["status"] == "complete" and row["cd"] is not None and row["quality"].startswith(("ok", "suspect"))
+    assert "teacup" in proc.stdout and "sparse_1000" in proc.stdout

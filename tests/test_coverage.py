@@ -61,8 +61,8 @@ def test_surface_balls_reuse_the_mesh_routes_medial_rays():
     rays["tol"] = sup.stats["ray_tolerance"]
     measured = surface_balls(samples.points, samples.normals, mesh)
     reused = surface_balls(samples.points, samples.normals, mesh, rays=rays)
-    for name in ("samples", "centres", "radii"):
-        assert np.array_equal(getattr(measured, name), getattr(reused, name))
+    for name in ("samples", "centres", "radii"):  # to rounding: the shrinking ball carries the normals' last bits
+        assert np.allclose(getattr(measured, name), getattr(reused, name), rtol=0, atol=1e-12)
     fake = {**rays, "radii": np.zeros(len(samples.points))}  # reused: every ball dropped as too small
     assert len(surface_balls(samples.points, samples.normals, mesh, rays=fake).radii) == 0
     other = {**fake, "origins": samples.points + 1e-3}  # not these samples: measured anew

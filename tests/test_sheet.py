@@ -439,3 +439,42 @@ def test_pick_sheet_prefers_compact_then_the_shapes_chi_then_the_better_fit():
     measured = (worse[0], {**worse[1], "cd": 0.05})
     kept, rows = pick_sheet([right, measured], fit, target_chi=1)
     assert kept == 1 and rows[1]["cd"] == 0.05
+
+
+def test_a_sphere_is_one_ball_and_an_ellipsoid_is_not():
+    import logging
+
+    import trimesh
+
+    from qmdf.medial.coverage import surface_balls
+    from qmdf.medial.refinement import SheetData
+    from qmdf.medial.sheet import one_ball
+    from qmdf.geometry.sampling import sample_surface
+
+    from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface
+
+    def data_of(mesh):
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        s = sample_surface(v, f, 2000, np.random.default_rng(0))
+        even = EvenlyMeshedSurface((v, f))  # a sphere's centre: the AABB tree's worst case
+        return SheetData(
+            even,
+            None,
+            None,
+            lambda: surface_balls(s.points, s.normals, even),
+            target_vertices=3000,
+            tolerance=1e-3,
+            tip_reach=0.0,
+            compact_slack=1.0,
+            log=logging.getLogger("t"),
+        )
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.4)
+    sphere.apply_translation([0.05, -0.02, 0.01])
+    mat, cd = one_ball(data_of(sphere))
+    assert len(mat.vertices) == 1 and not len(mat.edges) and not len(mat.faces)
+    assert np.allclose(mat.vertices[0], [0.05, -0.02, 0.01], atol=1e-3) and abs(mat.radii[0] - 0.4) < 1e-3
+    assert cd <= 1e-3
+    ellipsoid = trimesh.creation.icosphere(subdivisions=4, radius=0.4)
+    ellipsoid.apply_scale([1.0, 0.97, 0.94])  # 2.4e-2 from round at most: a disc's MAT, not a point
+    assert one_ball(data_of(ellipsoid)) is None

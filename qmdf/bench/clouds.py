@@ -5,14 +5,19 @@ are drawn with the degradations the pipeline uses (``qmdf.geometry.degradations`
 1,000; 20k with 0.5% and 1% Gaussian noise (of the bounding-box diagonal); 20k with three missing balls; a
 density ramp. Each is oriented by every method of ``train.supervision.orientation`` and scored against the
 source's outward normals: the share within 90 degrees (orientation accuracy), the median angle, the share the
-cloud's own winding number contradicts, and the seconds. The whole pipeline on such clouds is ``bench models`` with
-``+sample.degradations...`` overrides; this suite isolates the step that decides inside from outside.
+cloud's own winding number contradicts, and the seconds: the step that decides inside from outside, alone.
+
+``--pipeline`` runs the whole pipeline on each cloud instead (``python -m qmdf`` in its own process, as ``bench
+models``, the cloud drawn by the sample stage's own degradations and normals dropped), scored against the source
+mesh: the field's sign accuracy, CD / HD / chi, boundary smoothness, vertices, the run's verdict and wall time, and
+beside them the same source's mesh-route CD (one more run per source; ``--no-mesh-route`` skips it).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -98,7 +103,14 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--clouds", default=",".join(CLOUDS), help="comma-separated cloud kinds")
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated orientation methods")
     ap.add_argument("--json", type=Path, help="write the rows as a JSON list")
+    ap.add_argument("--pipeline", action="store_true", help="run the whole pipeline on each cloud (minutes a row)")
+    ap.add_argument("--no-mesh-route", action="store_true", help="with --pipeline: no mesh-route run per source")
+    ap.add_argument("--out", type=Path, default=Path("runs/bench/clouds"), help="with --pipeline: run directories")
+    ap.add_argument("--timeout", type=int, default=3600, help="with --pipeline: seconds per run")
+    ap.add_argument("overrides", nargs="*", help="with --pipeline: config overrides for every run")
     args = ap.parse_args(argv)
+    if args.pipeline:
+        return pipeline_main(args)
     only = {s for s in args.only.split(",") if s}
     kinds = [k for k in args.clouds.split(",") if k]
     methods = [m for m in args.methods.split(",") if m]
@@ -130,3 +142,70 @@ def main(argv: list[str]) -> int:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0
+
+
+def degradation_overrides(kind: str) -> list[str]:
+    """The sample stage's overrides that draw cloud ``kind`` from the input mesh, its normals dropped."""
+    out = []
+    for name, params in CLOUDS[kind].items():
+        out += [f"+sample.degradations.{name}.{key}={_hydra_value(value)}" for key, value in params.items()]
+        out += [] if params else [f"+sample.degradations.{name}={{}}"]  # its defaults
+    return out + ["+sample.degradations.drop_normals.enabled=true"]
+
+
+def _hydra_value(value) -> str:
+    return "[" + ",".join(map(str, value)) + "]" if isinstance(value, (list, tuple)) else str(value)
+
+
+def pipeline_main(args) -> int:
+    from qmdf.bench.models import discover, run_model
+
+    only = {s for s in args.only.split(",") if s}
+    kinds = [k for k in args.clouds.split(",") if k]
+    models = [
+        m
+        for m in discover(args.data)
+        if (m.category in CATEGORIES or m.name in ("teacup", "cyclide")) and (not only or m.name in only)
+    ]
+    overrides = ["cache.enabled=false", *args.overrides]
+    out = args.out / time.strftime("%Y-%m-%d_%H-%M-%S")
+    rows = []
+    for model in models:
+        mesh_cd = None
+        if not args.no_mesh_route:
+            print(f"{model.name}: the mesh route ...", file=sys.stderr, flush=True)
+            mesh_cd = run_model(model, out / "mesh", overrides, args.timeout).get("cd")
+        for kind in kinds:
+            print(f"{model.name}: {kind} ...", file=sys.stderr, flush=True)
+            row = run_model(model, out / kind, overrides + degradation_overrides(kind), args.timeout)
+            row.update(source=model.name, cloud=kind, mesh_cd=mesh_cd)
+            row["quality"] = _quality(out / kind / model.name)
+            rows.append(row)
+            print_pipeline_row(row)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def _quality(run_dir: Path) -> str:
+    manifest = run_dir / "manifest.json"
+    if not manifest.exists():
+        return "failed"
+    m = json.loads(manifest.read_text())
+    reasons = m.get("quality_reasons") or []
+    return str(m.get("quality", "unchecked")) + (f" ({'; '.join(reasons)})" if reasons else "")
+
+
+def print_pipeline_row(r: dict) -> None:
+    def f(v, scale=1.0, digits=2):
+        return "-" if v is None else f"{v * scale:.{digits}f}"
+
+    ratio = r["cd"] / r["mesh_cd"] if r.get("cd") and r.get("mesh_cd") else None
+    print(
+        f"{r['source']:<16}{r['cloud']:<13}sign {f(r.get('sign'), 100, 2):>6}%  CD {f(r.get('cd'), 1e3):>6}e-3 "
+        f"HD {f(r.get('hd'), 1e3, 1):>6}e-3  chi {r.get('chi', '-')!s:>5} ({r.get('expected_chi', '-')!s})  "
+        f"C_avg {f(r.get('smoothness'), 1, 3):>6}  V {r.get('vertices', '-')!s:>5}  "
+        f"mesh CD {f(r.get('mesh_cd'), 1e3)}e-3 "
+        f"(x{f(ratio, 1, 1)})  {r['wall_s']:.0f} s  {r.get('quality')}",
+        flush=True,
+    )

@@ -12,6 +12,8 @@ Floors (what a stage cannot beat, not what it should equal):
   no link condition, no thinning, no centring, no coverage);
 - export: one vectorised envelope evaluation of the MAT meshed at the reconstruction's resolution;
 - evaluate: one SciPy KD-tree built on and queried with the sample count.
+Beside the whole run: the classic Voronoi-pole MAT (Delaunay and inner poles, ``qmdf.geometry.poles``) of the run's
+own surface samples, timed in the same process after it.
 Time it with nothing else running: two torch processes on 2 cores slow each other far more than 2x.
 """
 
@@ -88,6 +90,19 @@ def floors(run_dir: Path) -> dict[str, tuple[float, str]]:
     n = int(cfg["evaluate"]["samples"])
     out["evaluate"] = (_kdtree_floor(n), f"a KD-tree of {n} samples queried with {n}")
     return out
+
+
+def pole_baseline(run_dir: Path) -> tuple[float | None, int]:
+    """Seconds of the classic Voronoi-pole MAT (``qmdf.geometry.poles``: qhull's Delaunay and the inner poles) of
+    the run's own surface samples with their normals, and their count; None where the samples carry no normals
+    (a raw cloud: the poles need them)."""
+    from qmdf.geometry.poles import inner_poles
+    from qmdf.pipeline import RunResult
+
+    points = RunResult.open(run_dir).load("points")
+    if points.normals is None:
+        return None, len(points.points)
+    return round(_timed(lambda: inner_poles(points.points, points.normals)), 2), len(points.points)
 
 
 def _train_floor(run, optim: dict) -> float:
@@ -175,6 +190,7 @@ def run_model(name: str, override: str, out: Path, overrides: list[str], timeout
         for s in manifest["stages"]
     ]
     row["pipeline_s"] = round(sum(s["seconds"] for s in manifest["stages"]), 1)
+    row["poles_s"], row["poles_samples"] = pole_baseline(run_dir)
     row["cover_to_evaluate_s"] = round(
         sum(
             s["seconds"]
@@ -198,6 +214,11 @@ def print_table(rows: list[dict]) -> None:
         )
         if "stages" not in row:
             continue
+        if row.get("poles_s"):
+            print(
+                f"  the Voronoi poles of the same {row['poles_samples']} samples: {row['poles_s']} s; the pipeline "
+                f"{row['pipeline_s'] / row['poles_s']:.1f}x that"
+            )
         print(f"  {'stage':<10}{'wall s':>8}{'CPU s':>8}{'peak MB':>9}{'floor s':>9}{'ratio':>8}  floor")
         for s in row["stages"]:
             f = s["floor_s"]

@@ -59,7 +59,7 @@ class Export(Stage):
         "membrane_mat": MAT,
     }
     config_deps = ("seed", "sheet")  # the radius source, centring and coverage: the sheet's settings
-    version = "12"  # docs/history.md lists what each version changed; 12: the sheet's settings, not its own
+    version = "13"  # docs/history.md lists what each version changed; 13: the membrane centred where it may be the MAT
 
     def run(self, ctx: StageContext) -> None:
         from qmdf.geometry.envelope import EnvelopeUnion, reconstruct_mesh
@@ -68,10 +68,11 @@ class Export(Stage):
         sheet = ctx.sections["sheet"]
         from_data = sheet.radius == "data"
         mesh, points = input_data(ctx) if from_data else (None, None)
-        field, centre = ctx.load("field"), "centre" in sheet.steps
+        sheet_stats = ctx.load("sheet_stats") if ctx.has("sheet_stats") else {}
+        # centred where it may be the MAT, not beside a sheet that fits the data (a sphere's: 74 s, unused)
+        field, centre = ctx.load("field"), "centre" in sheet.steps and not sheet_stats.get("fits_data", False)
         membrane = membrane_to_mat(ctx.load("membrane"), field, sheet.radius, mesh, points, centre=centre)
         ctx.save("membrane_mat", membrane)
-        sheet_stats = ctx.load("sheet_stats") if ctx.has("sheet_stats") else {}
         use_sheet = ctx.has("sheet") and sheet_stats.get("compact", True)
         mat = ctx.load("sheet") if use_sheet else membrane
         cover = from_data and "coverage" in sheet.steps

@@ -86,7 +86,7 @@ class Sheet(Stage):
         "point_surface": MESH,
     }
     outputs = {"sheet": MAT, "sheet_stats": JSON}
-    version = "20"  # docs/history.md lists what each version changed; 20: the refinement as registered steps
+    version = "21"  # docs/history.md lists what each version changed; 21: one ball where the data is a sphere
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:

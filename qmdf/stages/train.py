@@ -46,7 +46,7 @@ class Train(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
     optional_outputs = {"medial_rays": RAYS, "point_surface": MESH}
-    version = "14"  # docs/history.md lists what each version changed
+    version = "15"  # docs/history.md lists what each version changed; 15: the shrinking ball
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
