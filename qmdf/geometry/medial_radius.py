@@ -44,11 +44,11 @@ def shrinking_ball_radii(
 ) -> np.ndarray:
     """The same radius as ``inward_medial_radii`` (the largest ball tangent at p passing the test), by the
     shrinking ball (Ma, Bae, Choi and Park, 2012): the ball at depth r holds a surface point x closer to its centre
-    than r - tol, so no ball deeper than the one tangent at p through x, r' = |p - x|^2 / (2 (p - x) . n), passes
-    either; shrink to it and test again. Each step is one closest-point query (``closest(q) -> (d, x)``), and most
-    rays stop after a few: bisection needs one per halving (14 to 16) and each costs the most by the axis, where
-    the surface is equally near all around. Rays still shrinking after ``steps`` are bisected below their last
-    radius."""
+    than r - tol, so no ball deeper than the one tangent at p whose centre lies r' - tol from x passes either,
+    r' = (|p - x|^2 - tol^2) / (2 ((p - x) . n - tol)); shrink to it and test again. Each step is one
+    closest-point query (``closest(q) -> (d, x)``), and most rays stop after a few: bisection needs one per halving
+    (14 to 16) and each costs the most by the axis, where the surface is equally near all around. Rays still
+    shrinking after ``steps`` are bisected below their last radius."""
     p = np.asarray(points, np.float64)
     n = np.asarray(normals, np.float64)
     tol = np.broadcast_to(np.asarray(tol, float), (len(p),))
