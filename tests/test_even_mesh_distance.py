@@ -95,3 +95,14 @@ def test_the_shrinking_ball_finds_the_bisections_radius():
         shrunk = shrinking_ball_radii(s.points, s.normals, nearest, tol=2e-3)
         assert np.abs(shrunk - bisected).max() < 2.0 / 2**16 * 1.01  # the bisection's own resolution
         assert np.all(nearest(s.points - shrunk[:, None] * s.normals)[0] >= shrunk - 2e-3 - 1e-12)  # it passes
+
+
+def test_an_evenly_meshed_surface_builds_its_index_once():
+    from qmdf.geometry.even_mesh_distance import surface_distance_function
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    even = EvenlyMeshedSurface((np.asarray(mesh.vertices), np.asarray(mesh.faces)))
+    first, second = surface_distance_function(even), surface_distance_function(even)
+    assert first.__self__ is second.__self__ is even.index
+    q = np.random.default_rng(4).normal(size=(50, 3))
+    assert np.array_equal(first(q)[0], even_mesh_distance_function(*even)(q)[0])

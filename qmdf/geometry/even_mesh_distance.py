@@ -10,6 +10,7 @@ queries anywhere in the box: 0.99 s against 8.9 s (2 cores)."""
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -27,7 +28,12 @@ NEAREST_VERTICES = 3
 
 class EvenlyMeshedSurface(tuple):
     """``(vertices, faces)`` of a surface whose edges are all about as long (a Poisson surface), so that
-    ``qmdf.medial.radii.data_distance`` answers distances to it near its vertices; unpacks like the plain pair."""
+    ``qmdf.medial.radii.data_distance`` answers distances to it near its vertices; unpacks like the plain pair.
+    Its index is built once (the sheet stage asks for distances to it from each of its steps)."""
+
+    @cached_property
+    def index(self) -> "EvenSurfaceIndex":
+        return EvenSurfaceIndex(*self)
 
 
 @njit(cache=True)
@@ -190,5 +196,5 @@ def surface_distance_function(mesh):
     from qmdf.geometry.inside import mesh_distance_function
 
     if isinstance(mesh, EvenlyMeshedSurface):
-        return even_mesh_distance_function(*mesh)
+        return mesh.index.closest
     return mesh_distance_function(*mesh)
