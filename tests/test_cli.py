@@ -254,7 +254,7 @@ def test_help_lists_every_setting_with_its_doc(cli):
     assert "  contract.iterations  (int = 3000)\n      optimisation steps (paper: about 3k)" in out
     assert "train.supervision.point_surface  (str = 'poisson')" in out and "  input.path  (Optional = None)" in out
     # each sheet step's settings by its key path; the tuned constants folded into one line
-    assert "  sheet.step.fit.iterations  (int = 6)" in out and "sheet.expert.valley_share" not in out
+    assert "  sheet.step.fit.iterations  (int = 12)" in out and "sheet.expert.valley_share" not in out
     assert "  sheet.expert.*  (12 tuned constants" in out
     assert "  sheet.expert.valley_share  (float = 0.5)" in cli("--help-expert").stdout
     assert not list((cli.cwd).glob("runs")) and not list(cli.cwd.glob("outputs"))  # no run for a help

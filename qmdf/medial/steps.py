@@ -147,7 +147,7 @@ def fit(mat: MAT, data: SheetData, cfg: FitSettings):
     """Every sphere's centre and radius moved by damped Gauss-Newton steps so that the envelope passes through
     the data's surface samples (``medial.envelope_fit``), the tips fixed."""
     v, r, stats = fit_envelope_to_samples(
-        *mat, data.balls.samples, data.fixed(mat.vertices), cfg.iterations, cfg.damping
+        *mat, data.balls.samples, data.fixed(mat.vertices), cfg.iterations, cfg.damping, cfg.rim_fairness
     )
     return MAT(v, r, mat.edges, mat.faces), stats
 

@@ -86,7 +86,7 @@ class Sheet(Stage):
         "point_surface": MESH,
     }
     outputs = {"sheet": MAT, "sheet_stats": JSON}
-    version = "21"  # docs/history.md lists what each version changed; 21: one ball where the data is a sphere
+    version = "22"  # docs/history.md lists what each version changed; 22: the fit fairs the rims
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
