@@ -117,3 +117,5 @@ def test_rim_fairness_smooths_a_sawtooth_rim_without_losing_the_fit():
     assert plain > 0.5 * before, (before, plain)  # the samples alone leave the teeth
     assert fair < 0.5 * plain, (plain, fair)
     assert misfit(fair_v, fair_r) < 1.05 * misfit(plain_v, plain_r) < 0.5 * misfit(v, r)
+    edge = np.unique(rim)
+    assert np.all(fair_r[edge] > 0.5 * r[edge])  # the rim's balls keep their size (faired with their radii)

@@ -18,9 +18,11 @@ The rims' fairness. Where the medial axis of a smooth surface ends, it ends in a
 curvature of the surface's ridges), but the samples alone do not say where along the sheet a rim vertex sits: a
 rim ball that touches the surface fits it from anywhere on a strip of the axis, so the fit leaves the rim the
 sawtooth the grid's collapse made (the bunny's median rim vertex turned by 88 degrees). ``rim_fairness`` adds the
-residual w (c_i - (c_a + c_b) / 2) for each rim vertex i between its rim neighbours a and b (a discrete
-curvature of the rim curve, linear in the centres), in the same units as the damping, so the least-squares
-fit picks, among the envelopes that fit the samples, the one with the smoothest rims.
+residual w (b_i - (b_a + b_b) / 2) for each rim vertex i between its rim neighbours a and b, b a ball's centre and
+radius (a discrete curvature of the rim's curve of balls, linear in them), in the same units as the damping, so
+the least-squares fit picks, among the envelopes that fit the samples, the one with the smoothest rims. The
+radius is in it because a rim ball faired by its centre alone can lose its samples and shrink to nothing (16
+balls of no radius inside the bunny); along a smooth rim the radius varies smoothly too.
 """
 
 from __future__ import annotations
@@ -49,9 +51,8 @@ class FitSettings:
         0.03,
         ge=0,
         doc="weight of the rims' curvature beside the samples' distances, per vertex's share of the samples "
-        "(module doc; 0: the samples alone). Bunny, 12 steps: C_avg 1.34 -> 0.86 at 0.03, 0.60 at 0.05; CD / HD "
-        "within 1.1x of the samples alone at 0.03 on the bunny, kitten, teacup and block, HD 1.27x on the teacup "
-        "at 0.05",
+        "(module doc; 0: the samples alone). Bunny, 12 steps: C_avg 1.34 -> 0.82 at 0.03 at the same CD and HD "
+        "(docs/results.md: more weight, smoother rims and a worse fit)",
     )
     damping: float = param(
         0.12,
@@ -83,8 +84,8 @@ def foot_weights(foot: np.ndarray, corners: np.ndarray, kind: np.ndarray) -> np.
 
 
 class _RimCurvature:
-    """The rims' fairness rows (module doc): w (c_i - (c_a + c_b) / 2) per coordinate for every free rim vertex i
-    with exactly two rim neighbours a, b (where rims meet or end there is no curve to fair)."""
+    """The rims' fairness rows (module doc): w (b_i - (b_a + b_b) / 2) for every free rim vertex i with exactly two
+    rim neighbours a, b (where rims meet or end there is no curve to fair), b a ball's centre and radius."""
 
     def __init__(self, faces: np.ndarray, free: np.ndarray, weight: float):
         from qmdf.geometry.metrics import single_face_edges
@@ -100,24 +101,25 @@ class _RimCurvature:
         self.a, self.b = other[first[self.i]], other[first[self.i] + 1]
         self.weight, self.free = weight, free
 
-    def residual(self, v: np.ndarray) -> np.ndarray:
-        return self.weight * (v[self.i] - 0.5 * (v[self.a] + v[self.b]))
+    def residual(self, balls: np.ndarray) -> np.ndarray:
+        """Of the (V, 4) balls (centre, radius)."""
+        return self.weight * (balls[self.i] - 0.5 * (balls[self.a] + balls[self.b]))
 
-    def energy(self, v: np.ndarray) -> float:
-        res = self.residual(v)
+    def energy(self, balls: np.ndarray) -> float:
+        res = self.residual(balls)
         return float((res * res).sum())
 
-    def append(self, v, first_row, rows, cols, vals, residual):
+    def append(self, balls, first_row, rows, cols, vals, residual):
         """The rows below the samples' (rows from ``first_row``) and their right-hand side, -residual."""
         k = len(self.i)
-        for j in range(3):
-            row = first_row + 3 * np.arange(k) + j
+        for j in range(4):
+            row = first_row + 4 * np.arange(k) + j
             for who, coef in ((self.i, 1.0), (self.a, -0.5), (self.b, -0.5)):
                 moves = self.free[who]  # a fixed neighbour (a feature tip) is a constant here
                 rows.append(row[moves])
                 cols.append(4 * who[moves] + j)
                 vals.append(np.full(int(moves.sum()), self.weight * coef))
-        return rows, cols, vals, np.concatenate([residual, -self.residual(v).ravel()])
+        return rows, cols, vals, np.concatenate([residual, -self.residual(balls).ravel()])
 
 
 def fit_envelope_to_samples(
@@ -156,7 +158,7 @@ def fit_envelope_to_samples(
         union = EnvelopeUnion(v, r, edges, faces)
         d, prim = union.sdf(samples, return_argmin=True)
         history.append(float(np.abs(d).mean()))
-        objective = history[-1] if fair is None else float(np.sqrt((d @ d + fair.energy(v)) / len(d)))
+        objective = history[-1] if fair is None else float(np.sqrt((d @ d + fair.energy(np.c_[v, r])) / len(d)))
         if objective < best[0]:
             best = (objective, it, v, r)
         if it == iterations:
@@ -175,7 +177,7 @@ def fit_envelope_to_samples(
                 vals.append(-w[i, k] * (u[i, j] if j < 3 else 1.0))
         residual = -d
         if fair is not None:
-            rows, cols, vals, residual = fair.append(v, len(samples), rows, cols, vals, residual)
+            rows, cols, vals, residual = fair.append(np.c_[v, r], len(samples), rows, cols, vals, residual)
         jac = csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(len(residual), 4 * n)
         )
