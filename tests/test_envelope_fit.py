@@ -79,7 +79,6 @@ def test_fixed_vertices_stay_and_zero_iterations_change_nothing():
     assert stats["iteration"] == 0 and len(stats["mean_distance"]) == 1
 
 
-
 def test_rim_fairness_smooths_a_sawtooth_rim_without_losing_the_fit():
     """The ellipsoid's MAT cut short at 90% of its disc (where a covering's sheet ends), its rim zigzagging in
     and out by 4% (the grid's sawtooth), each ball touching the ellipsoid: the samples alone barely see where
