@@ -158,7 +158,8 @@ def fit_envelope_to_samples(
         union = EnvelopeUnion(v, r, edges, faces)
         d, prim = union.sdf(samples, return_argmin=True)
         history.append(float(np.abs(d).mean()))
-        objective = history[-1] if fair is None else float(np.sqrt((d @ d + fair.energy(np.c_[v, r])) / len(d)))
+        balls = np.c_[v, r]
+        objective = history[-1] if fair is None else float(np.sqrt((d @ d + fair.energy(balls)) / len(d)))
         if objective < best[0]:
             best = (objective, it, v, r)
         if it == iterations:
@@ -177,7 +178,7 @@ def fit_envelope_to_samples(
                 vals.append(-w[i, k] * (u[i, j] if j < 3 else 1.0))
         residual = -d
         if fair is not None:
-            rows, cols, vals, residual = fair.append(np.c_[v, r], len(samples), rows, cols, vals, residual)
+            rows, cols, vals, residual = fair.append(balls, len(samples), rows, cols, vals, residual)
         jac = csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(len(residual), 4 * n)
         )

@@ -145,7 +145,7 @@ def _fit_summary(s: dict) -> str:
 @sheet_step("fit", FitSettings, keep_if_better=True, summary=_fit_summary)
 def fit(mat: MAT, data: SheetData, cfg: FitSettings):
     """Every sphere's centre and radius moved by damped Gauss-Newton steps so that the envelope passes through
-    the data's surface samples (``medial.envelope_fit``), the tips fixed."""
+    the data's surface samples, the rims faired as curves of balls (``medial.envelope_fit``), the tips fixed."""
     v, r, stats = fit_envelope_to_samples(
         *mat, data.balls.samples, data.fixed(mat.vertices), cfg.iterations, cfg.damping, cfg.rim_fairness
     )
