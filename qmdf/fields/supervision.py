@@ -25,6 +25,7 @@ q = mf - |sdf| is 0 on the axis.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,6 +48,7 @@ from qmdf.geometry.medial_radius import (
 from qmdf.geometry.normals import local_spacing, orient_by_winding, pca_normals
 from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.metrics import solid_euler
+from qmdf.geometry.point_denoise import jet_smooth, noise_to_gap
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
 from qmdf.fields.settings import SupervisionSettings
@@ -118,7 +120,8 @@ def build_supervision(
         distance = mesh_distance_function(v, f)  # one AABB tree for the 16 halvings
         radii = shrinking_ball_radii(points, ray_normals, distance, tol=tol)  # bisection's radius, fewer queries
     elif route in ("oriented_points", "raw_points"):
-        if route == "raw_points" or normals is None:
+        raw = route == "raw_points" or normals is None
+        if raw:
             normals, residual, info = estimate_oriented_normals(points, method=s.orientation)
         else:
             _, residual = pca_normals(points)
@@ -126,11 +129,16 @@ def build_supervision(
         stats["orientation"] = info
         noise = float(np.median(residual))
         stats["noise_level"] = noise
+        reorient = (lambda p: estimate_oriented_normals(p, method=s.orientation)[::2]) if raw else None
+        points, normals = _denoised(points, normals, s.denoise, stats, reorient)
         if s.point_surface == "poisson":
             octree: dict = {}
             p = s.poisson
+            # a smoothed cloud still carries its noise over sqrt(neighbours): the fine octree follows that too (the
+            # noisy teacup's surface: 255k vertices of ripples, a covering of genus 26), so only the coarse one
+            fine = p.coarse_samples_per_node if stats["denoise"]["applied"] else p.samples_per_node
             proxy_mesh = poisson_surface(
-                points, normals, p.depth, p.point_weight, p.samples_per_node, p.coarse_samples_per_node, info=octree
+                points, normals, p.depth, p.point_weight, fine, p.coarse_samples_per_node, info=octree
             )
             stats["proxy"] = (
                 "poisson"
@@ -243,6 +251,42 @@ def build_supervision(
     return Supervision(
         route, surface, surface_normals, volume, sdf, mf, radii, ray, stats, origins, ray_normals, proxy_mesh
     )
+
+
+def _denoised(points, normals, settings, stats, reorient=None) -> tuple[np.ndarray, np.ndarray]:
+    """The cloud's points and normals, jet-smoothed onto their local surface where ``settings`` asks (``auto``: the
+    quadric fits' residual says noise). The smoothed points are the cloud from here on: the Poisson surface, the
+    rays and the zero level set all follow the surface, not its noise.
+
+    With ``reorient`` (raw points: their orientation method), the smoothed points are oriented again and smoothed
+    again with those normals, until a round turns fewer than 0.1% of them: noise is what misleads the orientation, and
+    a wrong normal puts a point's neighbours on the wrong side of its fit (the 1%-noisy bunny: 74% of the normals
+    right from the raw points, 91%, 97%, 98% after one, two, three rounds)."""
+    t0 = time.perf_counter()
+    gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
+    ratio = noise_to_gap(points, normals, gap)
+    apply = settings.mode == "on" or (settings.mode == "auto" and ratio > settings.threshold)
+    record = {"noise_to_gap": round(ratio, 4), "threshold": settings.threshold, "mode": settings.mode}
+    if apply:
+        smoothed, turned = points, []
+        for _ in range(settings.rounds if reorient is not None else 1):
+            smoothed, normals = jet_smooth(smoothed, normals, settings.neighbours, settings.passes)
+            if reorient is not None:
+                oriented, info = reorient(smoothed)
+                turned.append(float(np.mean((oriented * normals).sum(1) < 0)))
+                normals = oriented
+                # the run's orientation is that of the points it goes on with (the verdict reads its consistency)
+                first = stats["orientation"].get(
+                    "first_inconsistent_share", stats["orientation"].get("inconsistent_share")
+                )
+                stats["orientation"] = {**info, "first_inconsistent_share": first, "rounds": len(turned)}
+                if turned[-1] < 1e-3:
+                    break
+        record["moved_median"] = float(np.median(np.linalg.norm(smoothed - points, axis=1)))
+        record["turned_per_round"] = [round(t, 5) for t in turned]
+        points = smoothed
+    stats["denoise"] = {"applied": bool(apply), **record, "seconds": round(time.perf_counter() - t0, 2)}
+    return points, normals
 
 
 def _unit(n: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ class Train(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
     optional_outputs = {"medial_rays": RAYS, "point_surface": MESH}
-    version = "15"  # docs/history.md lists what each version changed; 15: the shrinking ball
+    version = "16"  # docs/history.md lists what each version changed; 16: a noisy cloud jet-smoothed
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:

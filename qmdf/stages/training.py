@@ -48,6 +48,17 @@ def supervise(ctx: StageContext, settings: SupervisionSettings):
     )
     if "orientation" in s:
         ctx.log.info("normals: %s", s["orientation"])
+    if "denoise" in s:
+        d = s["denoise"]
+        residual = f"the local quadrics' residual {d['noise_to_gap']:.3f} sampling gaps, threshold {d['threshold']:.3g}"
+        if d["applied"]:
+            turned = ", ".join(f"{100 * t:.2f}%" for t in d["turned_per_round"])
+            ctx.log.info(
+                "points: jet-smoothed (%s), moved %.2e median%s (%.1f s)",
+                *(residual, d["moved_median"], f"; normals turned per round {turned}" if turned else "", d["seconds"]),
+            )
+        else:
+            ctx.log.info("points: kept as given (%s; train.supervision.denoise.mode=%s)", residual, d["mode"])
     if "proxy" in s:
         ctx.notes["supervision"]["proxy"] = s["proxy"]
         surface = s.get("proxy_surface")
