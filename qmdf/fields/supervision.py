@@ -49,6 +49,7 @@ from qmdf.geometry.normals import local_spacing, orient_by_winding, pca_normals
 from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.metrics import solid_euler
 from qmdf.geometry.point_denoise import jet_smooth, noise_to_gap
+from qmdf.geometry.point_upsample import upsample_on_quadrics
 from qmdf.geometry.proxy_surface import poisson_surface
 from qmdf.geometry.sampling import sample_surface
 from qmdf.fields.settings import SupervisionSettings
@@ -129,8 +130,9 @@ def build_supervision(
         stats["orientation"] = info
         noise = float(np.median(residual))
         stats["noise_level"] = noise
+        gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
         reorient = (lambda p: estimate_oriented_normals(p, method=s.orientation)[::2]) if raw else None
-        points, normals = _denoised(points, normals, s.denoise, stats, reorient)
+        points, normals = _denoised(points, normals, gap, s.denoise, stats, reorient)
         if s.point_surface == "poisson":
             octree: dict = {}
             p = s.poisson
@@ -138,7 +140,9 @@ def build_supervision(
             # noisy teacup's surface: 255k vertices of ripples, a covering of genus 26), so only the coarse one
             fine = p.coarse_samples_per_node if stats["denoise"]["applied"] else p.samples_per_node
             proxy_mesh = poisson_surface(
-                points, normals, p.depth, p.point_weight, fine, p.coarse_samples_per_node, info=octree
+                *_upsampled(points, normals, gap, s.upsample, stats),
+                *(p.depth, p.point_weight, fine, p.coarse_samples_per_node),
+                info=octree,
             )
             stats["proxy"] = (
                 "poisson"
@@ -167,7 +171,6 @@ def build_supervision(
             # (6e-5) are enough. The distance is to its vertices (marching cubes spaces them about 4e-3 apart at
             # depth 8: an over-estimate of spacing^2 / (8 d), 2e-5 at d = 0.1): queries near the axis are the AABB
             # tree's worst case (on a torus's tube every face around the ring is nearly as close), 7x slower.
-            gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
             stats["ray_tolerance"] = tol = 1e-3 + 0.05 * gap
             # deep queries on coarser levels of the surface, within a quarter of the test's tolerance: at a
             # 3,000-point sphere's centre every one of its 59k vertices is as near (minutes of KD-tree search)
@@ -253,7 +256,7 @@ def build_supervision(
     )
 
 
-def _denoised(points, normals, settings, stats, reorient=None) -> tuple[np.ndarray, np.ndarray]:
+def _denoised(points, normals, gap, settings, stats, reorient=None) -> tuple[np.ndarray, np.ndarray]:
     """The cloud's points and normals, jet-smoothed onto their local surface where ``settings`` asks (``auto``: the
     quadric fits' residual says noise). The smoothed points are the cloud from here on: the Poisson surface, the
     rays and the zero level set all follow the surface, not its noise.
@@ -263,7 +266,6 @@ def _denoised(points, normals, settings, stats, reorient=None) -> tuple[np.ndarr
     a wrong normal puts a point's neighbours on the wrong side of its fit (the 1%-noisy bunny: 74% of the normals
     right from the raw points, 91%, 97%, 98% after one, two, three rounds)."""
     t0 = time.perf_counter()
-    gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
     ratio = noise_to_gap(points, normals, gap)
     apply = settings.mode == "on" or (settings.mode == "auto" and ratio > settings.threshold)
     record = {"noise_to_gap": round(ratio, 4), "threshold": settings.threshold, "mode": settings.mode}
@@ -287,6 +289,44 @@ def _denoised(points, normals, settings, stats, reorient=None) -> tuple[np.ndarr
         points = smoothed
     stats["denoise"] = {"applied": bool(apply), **record, "seconds": round(time.perf_counter() - t0, 2)}
     return points, normals
+
+
+def _upsampled(points, normals, gap, settings, stats) -> tuple[np.ndarray, np.ndarray]:
+    """The points and normals the Poisson solve gets: a sparse cloud's with new points on its local quadrics
+    (``settings.mode`` auto: fewer than ``max_points``). Only the solve gets them: the field still passes through
+    the given points."""
+    apply = settings.mode == "on" or (settings.mode == "auto" and len(points) < settings.max_points)
+    record = {"applied": bool(apply), "mode": settings.mode, "points": int(len(points))}
+    if apply:
+        t0 = time.perf_counter()
+        points, normals = upsample_on_quadrics(points, normals, gap, settings.neighbours, settings.ring, settings.count)
+        record.update(poisson_points=int(len(points)), seconds=round(time.perf_counter() - t0, 2))
+    stats["upsample"] = record
+    return points, normals
+
+
+def cloud_steps_in_words(stats: dict) -> list[str]:
+    """What ``build_supervision`` did to a cloud (its normals, smoothing and upsampling), one log line each."""
+    lines = [f"normals: {stats['orientation']}"] if "orientation" in stats else []
+    if "denoise" in stats:
+        d = stats["denoise"]
+        residual = f"the local quadrics' residual {d['noise_to_gap']:.3f} sampling gaps, threshold {d['threshold']:.3g}"
+        if d["applied"]:
+            turned = ", ".join(f"{100 * t:.2f}%" for t in d["turned_per_round"])
+            turned = f"; normals turned per round {turned}" if turned else ""
+            lines.append(
+                f"points: jet-smoothed ({residual}), moved {d['moved_median']:.2e} median{turned} "
+                f"({d['seconds']:.1f} s)"
+            )
+        else:
+            lines.append(f"points: kept as given ({residual}; train.supervision.denoise.mode={d['mode']})")
+    u = stats.get("upsample", {})
+    if u.get("applied"):
+        lines.append(
+            f"points: {u['points']} -> {u['poisson_points']} for the Poisson solve, on their local quadrics "
+            f"({u['seconds']:.1f} s; train.supervision.upsample)"
+        )
+    return lines
 
 
 def _unit(n: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ def route_losses(optim: OptimSettings, route: str) -> dict:
 
 def supervise(ctx: StageContext, settings: SupervisionSettings):
     """The route's training targets (``qmdf.fields.supervision``), logged and recorded in the stage's notes."""
-    from qmdf.fields.supervision import build_supervision, choose_route
+    from qmdf.fields.supervision import build_supervision, choose_route, cloud_steps_in_words
 
     points = ctx.load("points")
     info = ctx.load("input_info") if ctx.has("input_info") else {}
@@ -46,19 +46,8 @@ def supervise(ctx: StageContext, settings: SupervisionSettings):
         "supervision: %s (%s); %d volume samples, %d with a distance target, %d on medial rays (%.1f s)",
         *(route, why, s["volume_samples"], s["sdf_targets"], s["mf_targets"], s["seconds"]),
     )
-    if "orientation" in s:
-        ctx.log.info("normals: %s", s["orientation"])
-    if "denoise" in s:
-        d = s["denoise"]
-        residual = f"the local quadrics' residual {d['noise_to_gap']:.3f} sampling gaps, threshold {d['threshold']:.3g}"
-        if d["applied"]:
-            turned = ", ".join(f"{100 * t:.2f}%" for t in d["turned_per_round"])
-            ctx.log.info(
-                "points: jet-smoothed (%s), moved %.2e median%s (%.1f s)",
-                *(residual, d["moved_median"], f"; normals turned per round {turned}" if turned else "", d["seconds"]),
-            )
-        else:
-            ctx.log.info("points: kept as given (%s; train.supervision.denoise.mode=%s)", residual, d["mode"])
+    for line in cloud_steps_in_words(s):
+        ctx.log.info(line)
     if "proxy" in s:
         ctx.notes["supervision"]["proxy"] = s["proxy"]
         surface = s.get("proxy_surface")
