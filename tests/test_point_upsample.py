@@ -60,8 +60,8 @@ def test_the_two_sides_of_a_thin_wall_stay_apart():
 def test_a_sparse_thin_walled_cup_keeps_its_wall_in_the_poisson_surface():
     # the 0.05 wall thinner than the 0.068 gap of 1,500 points; true normals: the reconstruction alone. Its topology
     # at this density turns on single holes, so over three draws: solid chi -7, -9, -8 without (a genus-1 solid: 0),
-    # -1, -2, -1 with; the cup's mean distance to the surface 4.9e-3 -> 1.2e-3, its share farther than 0.01 13-14% ->
-    # 0.9-1.6%
+    # -1, -1, -1 with; the cup's mean distance to the surface 4.9e-3 -> 1.2e-3, its share farther than 0.01 13-14% ->
+    # 0.8-1.5%
     cup = get_shape("teacup").mesh(96)
     cup_points = np.asarray(trimesh.sample.sample_surface(cup, 5000, seed=9)[0])
     errors, far = np.zeros(2), np.zeros(2)
@@ -72,5 +72,5 @@ def test_a_sparse_thin_walled_cup_keeps_its_wall_in_the_poisson_surface():
             v, f = poisson_surface(*cloud)
             errors[i] += abs(solid_euler(f))
             far[i] += np.mean(mesh_distance(v, f, cup_points)[0] > 0.01)
-    assert errors[1] <= 5 < 15 < errors[0]
+    assert errors[1] <= 4 < 15 < errors[0]
     assert far[1] < far[0] / 4

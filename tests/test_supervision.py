@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from qmdf.fields.settings import DenoiseSettings, SupervisionSettings
+from qmdf.fields.settings import DenoiseSettings, SupervisionSettings, UpsampleSettings
 from qmdf.fields.supervision import build_supervision, choose_route
 from qmdf.geometry.inside import (
     mesh_distance,
@@ -390,3 +390,28 @@ def test_the_poisson_surface_follows_a_sparse_clean_cloud_between_its_points_but
     v, f = poisson_surface(noisy, nrm, info=info)
     assert info["samples_per_node"] == 1.5 and "fits noise" in info["why"]
     assert trimesh.Trimesh(v, f, process=False).is_watertight
+
+
+def test_a_sparse_clouds_poisson_solve_is_upsampled_and_falls_back_to_the_given_points(monkeypatch):
+    import qmdf.fields.supervision as supervision
+
+    torus = get_shape("torus").mesh(64)
+    pts, nrm = _samples(torus, 800)
+    settings = SupervisionSettings(volume_samples=3000)
+    sup = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), settings=settings)
+    u = sup.stats["upsample"]
+    assert u["applied"] and u["points"] == 800 and 5 * 800 < u["poisson_points"] <= 7 * 800
+    assert sup.stats["proxy_surface"]["solid_euler"] == 0 and "fallback" not in u
+    assert sup.surface is pts  # the field still passes through the given points
+    # new points that leave no closed surface (normals at random): the given points are solved alone
+    rng = np.random.default_rng(5)
+    monkeypatch.setattr(
+        supervision,
+        "upsample_on_quadrics",
+        lambda p, n, *a: (rng.uniform(-0.5, 0.5, (6000, 3)), rng.normal(size=(6000, 3))),
+    )
+    sup = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), settings=settings)
+    assert sup.stats["upsample"]["fallback"] and sup.stats["proxy_surface"]["solid_euler"] == 0
+    dense = SupervisionSettings(volume_samples=3000, upsample=UpsampleSettings(max_points=500))
+    sup = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), settings=dense)
+    assert not sup.stats["upsample"]["applied"]

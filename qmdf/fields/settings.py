@@ -115,7 +115,7 @@ class UpsampleSettings:
         10_000,
         ge=0,
         doc="auto's limit: sparse clouds (the bench's 1,000 and 2,000 points of 18 shapes: the Poisson surface's CD "
-        "lower on 34 of 36, its solid chi right on 24 against 20); at 20k points it gains little (CD x0.73 to x1.09 "
+        "lower on 35 of 36, its solid chi right on 24 against 20); at 20k points it gains little (CD x0.73 to x1.09 "
         "on four models) and costs 5-11 s",
     )
     count: int = param(6, ge=1, doc="new points around each point, on a ring in its tangent plane")

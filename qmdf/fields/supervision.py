@@ -139,11 +139,12 @@ def build_supervision(
             # a smoothed cloud still carries its noise over sqrt(neighbours): the fine octree follows that too (the
             # noisy teacup's surface: 255k vertices of ripples, a covering of genus 26), so only the coarse one
             fine = p.coarse_samples_per_node if stats["denoise"]["applied"] else p.samples_per_node
-            proxy_mesh = poisson_surface(
-                *_upsampled(points, normals, gap, s.upsample, stats),
-                *(p.depth, p.point_weight, fine, p.coarse_samples_per_node),
-                info=octree,
-            )
+            solver = (p.depth, p.point_weight, fine, p.coarse_samples_per_node)
+            proxy_mesh = poisson_surface(*_upsampled(points, normals, gap, s.upsample, stats), *solver, info=octree)
+            if proxy_mesh is None and stats["upsample"]["applied"]:
+                # the new points are an aid: where they leave no closed surface, the given ones alone may
+                stats["upsample"]["fallback"] = True
+                proxy_mesh = poisson_surface(points, normals, *solver, info=octree)
             stats["proxy"] = (
                 "poisson"
                 if proxy_mesh is not None
@@ -325,6 +326,7 @@ def cloud_steps_in_words(stats: dict) -> list[str]:
         lines.append(
             f"points: {u['points']} -> {u['poisson_points']} for the Poisson solve, on their local quadrics "
             f"({u['seconds']:.1f} s; train.supervision.upsample)"
+            + ("; they gave no closed surface, so the given points alone were solved" if u.get("fallback") else "")
         )
     return lines
 
