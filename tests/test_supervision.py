@@ -289,7 +289,9 @@ def test_the_zero_level_can_follow_the_poisson_surface_instead_of_noisy_points()
         noisy,
         nrm,
         np.random.default_rng(0),
-        settings=SupervisionSettings(volume_samples=5000, zero_level="proxy"),
+        # the Poisson surface of the points as given (upsampled, this sparse noisy cloud's surface is a little
+        # noisier: median distance to the torus 1.81e-3 -> 1.98e-3, docs/raw-clouds.md)
+        settings=SupervisionSettings(volume_samples=5000, zero_level="proxy", upsample=UpsampleSettings(mode="off")),
     )
     assert sup.stats["zero_level"] == "proxy" and sup.surface is sup.ray_origins
     # noise of 0.006: the surface the field is asked to pass through is closer to the true torus (measured 2.6x)
