@@ -131,8 +131,7 @@ def build_supervision(
         noise = float(np.median(residual))
         stats["noise_level"] = noise
         gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
-        reorient = (lambda p: estimate_oriented_normals(p, method=s.orientation)[::2]) if raw else None
-        points, normals = _denoised(points, normals, gap, s.denoise, stats, reorient)
+        points, normals = _denoised(points, normals, gap, s.denoise, stats, s.orientation if raw else None)
         if s.point_surface == "poisson":
             octree: dict = {}
             p = s.poisson
@@ -257,12 +256,12 @@ def build_supervision(
     )
 
 
-def _denoised(points, normals, gap, settings, stats, reorient=None) -> tuple[np.ndarray, np.ndarray]:
+def _denoised(points, normals, gap, settings, stats, orientation=None) -> tuple[np.ndarray, np.ndarray]:
     """The cloud's points and normals, jet-smoothed onto their local surface where ``settings`` asks (``auto``: the
     quadric fits' residual says noise). The smoothed points are the cloud from here on: the Poisson surface, the
     rays and the zero level set all follow the surface, not its noise.
 
-    With ``reorient`` (raw points: their orientation method), the smoothed points are oriented again and smoothed
+    With ``orientation`` (raw points: their orientation method), the smoothed points are oriented again and smoothed
     again with those normals, until a round turns fewer than 0.1% of them: noise is what misleads the orientation, and
     a wrong normal puts a point's neighbours on the wrong side of its fit (the 1%-noisy bunny: 74% of the normals
     right from the raw points, 91%, 97%, 98% after one, two, three rounds)."""
@@ -272,16 +271,14 @@ def _denoised(points, normals, gap, settings, stats, reorient=None) -> tuple[np.
     record = {"noise_to_gap": round(ratio, 4), "threshold": settings.threshold, "mode": settings.mode}
     if apply:
         smoothed, turned = points, []
-        for _ in range(settings.rounds if reorient is not None else 1):
+        first = stats["orientation"].get("inconsistent_share")  # the raw points' own, kept beside the final one
+        for _ in range(settings.rounds if orientation is not None else 1):
             smoothed, normals = jet_smooth(smoothed, normals, settings.neighbours, settings.passes)
-            if reorient is not None:
-                oriented, info = reorient(smoothed)
+            if orientation is not None:
+                oriented, _, info = estimate_oriented_normals(smoothed, method=orientation)
                 turned.append(float(np.mean((oriented * normals).sum(1) < 0)))
                 normals = oriented
                 # the run's orientation is that of the points it goes on with (the verdict reads its consistency)
-                first = stats["orientation"].get(
-                    "first_inconsistent_share", stats["orientation"].get("inconsistent_share")
-                )
                 stats["orientation"] = {**info, "first_inconsistent_share": first, "rounds": len(turned)}
                 if turned[-1] < 1e-3:
                     break
