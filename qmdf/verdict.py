@@ -44,6 +44,7 @@ class Evidence:
     orientation: dict | None = None  # train's stats of a raw cloud's orientation
     proxy: str | None = None  # how a cloud's inside was fitted ("poisson", or why not)
     proxy_pieces: int | None = None  # pieces of the closed surface fitted to a cloud
+    proxy_euler: tuple[int, int] | None = None  # its solid chi, and as a grid of a quarter sampling gap sees it
     sign_accuracy: float | None = None
     volume: float | None = None  # the MAT's reconstruction's
     input_volume: float | None = None  # the input solid's (a closed mesh or a cloud's fitted surface)
@@ -75,6 +76,11 @@ def verdict(e: Evidence, limits: VerdictLimits = VerdictLimits()) -> dict:
         reasons.append(
             f"the solid fitted to the cloud has {e.proxy_pieces} pieces: walls thinner than the sampling gap, "
             "or holes the cloud leaves open"
+        )
+    if e.proxy_euler is not None and e.proxy_euler[0] != e.proxy_euler[1]:
+        reasons.append(
+            f"the solid fitted to the cloud has solid chi {e.proxy_euler[0]}, {e.proxy_euler[1]} at a quarter of the "
+            "sampling gap: a tunnel or thread narrower than the samples can show"
         )
     if e.sign_accuracy is not None and e.sign_accuracy < limits.sign_accuracy:
         reasons.append(

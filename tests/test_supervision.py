@@ -417,3 +417,43 @@ def test_a_sparse_clouds_poisson_solve_is_upsampled_and_falls_back_to_the_given_
     dense = SupervisionSettings(volume_samples=3000, upsample=UpsampleSettings(max_points=500))
     sup = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), settings=dense)
     assert not sup.stats["upsample"]["applied"]
+
+
+def test_the_solid_euler_a_grid_resolves_closes_a_pinhole_and_keeps_a_tunnel():
+    from qmdf.geometry.metrics import solid_euler
+    from qmdf.geometry.proxy_surface import resolved_solid_euler
+    from qmdf.geometry.shapes import marching_cubes_mesh
+
+    def holed_disc(hole, at):  # a disc 0.8 wide and 0.2 thick, a hole of radius ``hole`` through it at (at, at)
+        return lambda p: np.maximum.reduce(
+            [np.hypot(p[:, 0], p[:, 1]) - 0.4, np.abs(p[:, 2]) - 0.1, hole - np.hypot(p[:, 0] - at, p[:, 1] - at)]
+        )
+
+    # the grid's nodes lie every step from 2 steps below the mesh's lowest corner: the narrow hole passes between
+    # them at a step of 0.04, through them at 0.01
+    for hole, at, step, seen in ((0.1, 0.0, 0.05, 0), (0.012, 0.02, 0.01, 0), (0.012, 0.02, 0.04, 1)):
+        tm = marching_cubes_mesh(holed_disc(hole, at), (-0.5,) * 3, (0.5,) * 3, 128)
+        v, f = np.asarray(tm.vertices), np.asarray(tm.faces)
+        assert solid_euler(f) == 0  # one tunnel in the mesh, however narrow
+        assert resolved_solid_euler(v, f, step) == seen, (hole, step)
+
+
+def test_an_upsampled_surface_with_topology_finer_than_the_sampling_gives_way_to_the_given_points(monkeypatch):
+    import qmdf.fields.supervision as supervision
+
+    torus = get_shape("torus").mesh(64)
+    pts, nrm = _samples(torus, 800)
+    real, steps = supervision.resolved_solid_euler, []
+
+    def first_one_pinholed(v, f, step):  # the new points' surface (asked first) shows a pinhole the grid closes
+        steps.append(step)
+        return real(v, f, step) + (len(steps) == 1)
+
+    monkeypatch.setattr(supervision, "resolved_solid_euler", first_one_pinholed)
+    settings = SupervisionSettings(volume_samples=3000)
+    sup = build_supervision("oriented_points", pts, nrm, np.random.default_rng(0), settings=settings)
+    u = sup.stats["upsample"]
+    assert u["fallback"] and u["solid_euler"] == 0 and u["resolved_euler"] == 1
+    assert u["plain"] == {"solid_euler": 0, "resolved_euler": 0} and "a quarter of the sampling gap" in u["why"]
+    assert len(steps) == 2 and steps[0] == steps[1] and 0.005 < steps[0] < 0.02  # a quarter of the 800 points' gap
+    assert sup.stats["proxy_surface"]["solid_euler"] == 0

@@ -45,6 +45,7 @@ def test_a_good_result_is_ok_and_unknown_evidence_is_not_held_against_it():
         ({"orientation": {"method": "propagation", "inconsistent_share": 0.07}}, "7.0% of the estimated normals"),
         ({"proxy": "points (no closed Poisson surface: the normals contradict each other)"}, "no closed surface"),
         ({"proxy_pieces": 3}, "has 3 pieces"),
+        ({"proxy_euler": (0, 1)}, "solid chi 0, 1 at a quarter of the sampling gap"),
         ({"sign_accuracy": 0.72}, "72.0% of the box"),
         ({"volume": 0.2}, "2.04x the volume"),
         ({"volume": 0.05}, "0.51x the volume"),

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from qmdf.geometry.even_mesh_distance import EvenSurfaceIndex, surface_distance_function
+from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface, EvenSurfaceIndex, surface_distance_function
 from qmdf.geometry.inside import (
     mesh_distance_function,
     mesh_winding_number,
@@ -50,7 +50,7 @@ from qmdf.geometry.orientation import estimate_oriented_normals
 from qmdf.geometry.metrics import solid_euler
 from qmdf.geometry.point_denoise import jet_smooth, noise_to_gap
 from qmdf.geometry.point_upsample import upsample_on_quadrics
-from qmdf.geometry.proxy_surface import poisson_surface
+from qmdf.geometry.proxy_surface import poisson_surface, resolved_solid_euler
 from qmdf.geometry.sampling import sample_surface
 from qmdf.fields.settings import SupervisionSettings
 
@@ -133,17 +133,7 @@ def build_supervision(
         gap = float(np.median(local_spacing(points, k=8, low=0.0, high=1.0)))
         points, normals = _denoised(points, normals, gap, s.denoise, stats, s.orientation if raw else None)
         if s.point_surface == "poisson":
-            octree: dict = {}
-            p = s.poisson
-            # a smoothed cloud still carries its noise over sqrt(neighbours): the fine octree follows that too (the
-            # noisy teacup's surface: 255k vertices of ripples, a covering of genus 26), so only the coarse one
-            fine = p.coarse_samples_per_node if stats["denoise"]["applied"] else p.samples_per_node
-            solver = (p.depth, p.point_weight, fine, p.coarse_samples_per_node)
-            proxy_mesh = poisson_surface(*_upsampled(points, normals, gap, s.upsample, stats), *solver, info=octree)
-            if proxy_mesh is None and stats["upsample"]["applied"]:
-                # the new points are an aid: where they leave no closed surface, the given ones alone may
-                stats["upsample"]["fallback"] = True
-                proxy_mesh = poisson_surface(points, normals, *solver, info=octree)
+            proxy_mesh, octree = _proxy_surface(points, normals, gap, s, stats)
             stats["proxy"] = (
                 "poisson"
                 if proxy_mesh is not None
@@ -289,6 +279,45 @@ def _denoised(points, normals, gap, settings, stats, orientation=None) -> tuple[
     return points, normals
 
 
+def _proxy_surface(points, normals, gap, s, stats) -> tuple[EvenlyMeshedSurface | None, dict]:
+    """The screened Poisson surface of the oriented cloud (None where none closes) and the solver's octree record. A
+    sparse cloud's solve gets new points on its local quadrics (``_upsampled``), an aid the given points overrule
+    where the new ones leave no closed surface, or one with a tunnel or thread narrower than a quarter of the
+    sampling gap that the given points' own surface lacks: samples that far apart cannot show such topology, so
+    the new points made it."""
+    octree: dict = {}
+    p = s.poisson
+    # a smoothed cloud still carries its noise over sqrt(neighbours): the fine octree follows that too (the
+    # noisy teacup's surface: 255k vertices of ripples, a covering of genus 26), so only the coarse one
+    fine = p.coarse_samples_per_node if stats["denoise"]["applied"] else p.samples_per_node
+    solver = (p.depth, p.point_weight, fine, p.coarse_samples_per_node)
+    proxy = poisson_surface(*_upsampled(points, normals, gap, s.upsample, stats), *solver, info=octree)
+    upsample = stats["upsample"]
+    if not upsample["applied"]:
+        return proxy, octree
+    if proxy is None:
+        upsample["fallback"] = True
+        return poisson_surface(points, normals, *solver, info=octree), octree
+    chi, seen = solid_euler(proxy[1]), resolved_solid_euler(*proxy, gap / 4)
+    upsample["solid_euler"], upsample["resolved_euler"] = chi, seen
+    if chi == seen:
+        return proxy, octree
+    plain_octree: dict = {}
+    plain = poisson_surface(points, normals, *solver, info=plain_octree)
+    if plain is None:
+        return proxy, octree
+    plain_chi, plain_seen = solid_euler(plain[1]), resolved_solid_euler(*plain, gap / 4)
+    upsample["plain"] = {"solid_euler": plain_chi, "resolved_euler": plain_seen}
+    if plain_chi != plain_seen:
+        return proxy, octree
+    upsample["fallback"] = True
+    upsample["why"] = (
+        f"their surface's solid chi {chi} is {seen} at a quarter of the sampling gap (a tunnel or thread "
+        f"narrower than it); the given points' {plain_chi} at both"
+    )
+    return plain, plain_octree
+
+
 def _upsampled(points, normals, gap, settings, stats) -> tuple[np.ndarray, np.ndarray]:
     """The points and normals the Poisson solve gets: a sparse cloud's with new points on its local quadrics
     (``settings.mode`` auto: fewer than ``max_points``). Only the solve gets them: the field still passes through
@@ -323,7 +352,11 @@ def cloud_steps_in_words(stats: dict) -> list[str]:
         lines.append(
             f"points: {u['points']} -> {u['poisson_points']} for the Poisson solve, on their local quadrics "
             f"({u['seconds']:.1f} s; train.supervision.upsample)"
-            + ("; they gave no closed surface, so the given points alone were solved" if u.get("fallback") else "")
+            + (
+                f"; {u.get('why', 'they gave no closed surface')}, so the given points alone were solved"
+                if u.get("fallback")
+                else ""
+            )
         )
     return lines
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from qmdf.geometry.even_mesh_distance import EvenlyMeshedSurface
+from qmdf.geometry.inside import mesh_winding_number
 from qmdf.geometry.metrics import solid_euler
 
 
@@ -124,3 +125,20 @@ def _closed_main_parts(mesh, min_area_share: float, info: dict) -> EvenlyMeshedS
         mesh.invert()
     # marching cubes spaces its vertices evenly: distances to it are answered near them (even_mesh_distance)
     return EvenlyMeshedSurface((np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)))
+
+
+def resolved_solid_euler(vertices: np.ndarray, faces: np.ndarray, step: float, max_cells: int = 160) -> int:
+    """The solid's Euler characteristic as a grid of ``step`` sees it (coarsened to at most ``max_cells`` along the
+    longest side): its inside (winding number over 1/2) at the grid's nodes, 26-connected, so a tunnel narrower than
+    the step is closed (unless a line of nodes happens to thread it) and a thread thinner than it cut. Why: a cloud
+    whose sampling gap is a few steps cannot show such topology; where a surface fitted to it has some, the fit made
+    it (the sparse walrus's Poisson surface with the upsampling's points: a pinhole of a handle at a crease, chi 0
+    against 1 at a quarter of its gap)."""
+    from skimage.measure import euler_number
+
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    step = max(float(step), float((hi - lo).max()) / max_cells)
+    axes = [np.arange(a - 2 * step, b + 2.5 * step, step) for a, b in zip(lo, hi)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+    inside = mesh_winding_number(vertices, faces, nodes.reshape(-1, 3)) > 0.5
+    return int(euler_number(inside.reshape(nodes.shape[:3]), connectivity=3))

@@ -43,6 +43,9 @@ def evidence(ctx: StageContext, metrics: dict, recon, field, ref_v: np.ndarray, 
     sup = (ctx.load("training").get("supervision") or {}) if ctx.has("training") else {}
     e.orientation, e.proxy = sup.get("orientation"), sup.get("proxy")
     e.proxy_pieces = (sup.get("proxy_surface") or {}).get("pieces")
+    upsample = sup.get("upsample") or {}
+    if "resolved_euler" in upsample and not upsample.get("fallback"):  # the surface of the new points was kept
+        e.proxy_euler = (upsample["solid_euler"], upsample["resolved_euler"])
     if field is not None and ctx.has("points"):
         e.zero_set_distance = zero_set_distance(field.evaluate(ctx.load("points").points)["sdf"])
     solid = trimesh.Trimesh(ref_v, ref_f, process=False) if ref_f is not None else None

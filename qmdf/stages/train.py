@@ -46,7 +46,7 @@ class Train(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
     optional_outputs = {"medial_rays": RAYS, "point_surface": MESH}
-    version = "18"  # docs/history.md lists what each version changed; 18: no ring point on a steep quadric
+    version = "19"  # docs/history.md lists what each version changed; 19: no upsampled surface with sub-gap topology
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
