@@ -478,3 +478,37 @@ def test_a_sphere_is_one_ball_and_an_ellipsoid_is_not():
     ellipsoid = trimesh.creation.icosphere(subdivisions=4, radius=0.4)
     ellipsoid.apply_scale([1.0, 0.97, 0.94])  # 2.4e-2 from round at most: a disc's MAT, not a point
     assert one_ball(data_of(ellipsoid)) is None
+
+
+def test_the_two_off_axis_sheets_are_built_side_by_side_and_logged_one_after_the_other(caplog):
+    import logging
+    import threading
+    import time
+
+    from qmdf.medial.refinement import SheetData
+    from qmdf.medial.sheet import _side_by_side
+
+    data = SheetData(
+        None,
+        np.zeros((1, 3)),
+        lambda q: q[:, 0] < 0,
+        lambda: None,
+        target_vertices=10,
+        tolerance=1e-3,
+        tip_reach=0.0,
+        compact_slack=1.5,
+        log=logging.getLogger("qmdf.test_sheet"),
+    )
+    running = []
+
+    def build(rule, data):
+        running.append(threading.get_ident())
+        data.log.info("building %s", rule)
+        time.sleep(0.2 if rule == 0.75 else 0.0)  # the second finishes first, its lines still come second
+        data.log.info("built %s", rule)
+        return rule, {"threads_seen": len(set(running))}
+
+    with caplog.at_level(logging.INFO, logger="qmdf.test_sheet"):
+        out = _side_by_side(build, data, 0.75, 3.0)
+    assert [rule for rule, _ in out] == [0.75, 3.0] and len(set(running)) == 2
+    assert [r.getMessage() for r in caplog.records] == ["building 0.75", "built 0.75", "building 3.0", "built 3.0"]

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def build_bvh(anchor, rho, leaf_size):
     """A bounding-volume hierarchy over primitives, each inside its ball (anchor, rho): median splits of the
     anchors along the longest side. Per node: the anchors' box, the largest rho, the children (-1 at a leaf)
@@ -65,7 +65,7 @@ def build_bvh(anchor, rho, leaf_size):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def node_bound(px, py, pz, lo, hi, rho_max, node):
     dx = max(lo[node, 0] - px, 0.0, px - hi[node, 0])
     dy = max(lo[node, 1] - py, 0.0, py - hi[node, 1])

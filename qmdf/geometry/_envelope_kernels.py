@@ -16,7 +16,7 @@ from qmdf.geometry._bvh import node_bound
 _EPS = 1e-12
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False)
 def _cone(px, py, pz, ax, ay, az, ra, bx, by, bz, rb):
     dx, dy, dz = bx - ax, by - ay, bz - az
     dr = rb - ra
@@ -35,7 +35,7 @@ def _cone(px, py, pz, ax, ay, az, ra, bx, by, bz, rb):
     return math.sqrt(ex * ex + ey * ey + ez * ez) - (ra + t * dr)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False)
 def _slab(px, py, pz, c, r, i1, i2, i3):
     x1, y1, z1, r1 = c[i1, 0], c[i1, 1], c[i1, 2], r[i1]
     x2, y2, z2, r2 = c[i2, 0], c[i2, 1], c[i2, 2], r[i2]
@@ -71,7 +71,7 @@ def _slab(px, py, pz, c, r, i1, i2, i3):
     return min(v, _cone(px, py, pz, x1, y1, z1, r1, x3, y3, z3, r3))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prim_sdf(px, py, pz, j, prims, kind, c, r):
     a = prims[j, 0]
     if kind[j] == 0:
@@ -82,7 +82,7 @@ def _prim_sdf(px, py, pz, j, prims, kind, c, r):
     return _slab(px, py, pz, c, r, a, prims[j, 1], prims[j, 2])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def union_min(p, best, stop, arg, tree, shapes):
     """best[i] = min(best[i], min over primitives of their sdf at p[i]), arg[i] its primitive (kept where
     nothing went below best). Nearest nodes first, pruned by their lower bound; a point stops as soon as its

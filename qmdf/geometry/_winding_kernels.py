@@ -16,7 +16,7 @@ from numba import njit, prange
 _INV_4PI = 1.0 / (4.0 * math.pi)
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, nogil=True, fastmath=True)
 def winding_at(points, mu, queries, w):
     """A mu: the winding number at each query of dipoles ``mu`` (outward normal times area) at ``points``."""
     out = np.zeros(len(queries))
@@ -32,7 +32,7 @@ def winding_at(points, mu, queries, w):
     return out
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, nogil=True, fastmath=True)
 def winding_adjoint(points, values, w):
     """A^T s: the adjoint of ``winding_at`` with the points as queries, one vector per point."""
     n = len(points)
@@ -52,7 +52,7 @@ def winding_adjoint(points, values, w):
     return out
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, nogil=True, fastmath=True)
 def winding_descent(points, mu, queries, w):
     """Minus the gradient of the winding number at each query: it points from inside to outside."""
     out = np.zeros((len(queries), 3))

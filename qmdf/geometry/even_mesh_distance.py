@@ -36,7 +36,7 @@ class EvenlyMeshedSurface(tuple):
         return EvenSurfaceIndex(*self)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _closest_on_triangle(p, a, b, c):
     """The point of triangle abc closest to p (Ericson, Real-Time Collision Detection, 5.1.5)."""
     ab, ac, ap = b - a, c - a, p - a
@@ -64,7 +64,7 @@ def _closest_on_triangle(p, a, b, c):
     return a + ab * (vb * denom) + ac * (vc * denom)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _closest_over_rings(queries, near, ring_start, ring_faces, vertices, faces):
     n = len(queries)
     dist = np.empty(n)

@@ -48,7 +48,7 @@ class SimplifySettings:
 _DEFAULT = SimplifySettings()
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _best(QA, Qb, Qc, m, a, b):
     """(cost, sphere) of merging a and b: the minimiser of the summed quadric (the midpoint if singular)."""
     A = QA[a] + QA[b]
@@ -87,7 +87,7 @@ def _best(QA, Qb, Qc, m, a, b):
     return max(cost, 0.0), x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cross_norm2(p, k):
     """The cross product of triangle k's two sides from its corner 0 (p: (K, 3, 3)), and its squared length."""
     ax, ay, az = p[k, 1, 0] - p[k, 0, 0], p[k, 1, 1] - p[k, 0, 1], p[k, 1, 2] - p[k, 0, 2]
@@ -96,7 +96,7 @@ def _cross_norm2(p, k):
     return nx, ny, nz, nx * nx + ny * ny + nz * nz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _turns_within(p, q, min_cos):
     """Whether no triangle turns by more than acos(min_cos) from p (K, 3, 3) to q (nor collapses to a line).
     Scalars throughout: a small array per triangle was a heap allocation in the collapse loop's hottest test."""
@@ -130,7 +130,7 @@ def _initial_costs(Q: _Quadrics, faces: np.ndarray, edges: np.ndarray):
 
 # Adjacency as lists used as sets (a vertex has few faces): numba's own sets can hang after many removals
 # (numba issue 8627).
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add(items, x):
     for y in items:
         if y == x:
@@ -138,7 +138,7 @@ def _add(items, x):
     items.append(x)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _discard(items, x):
     for i in range(len(items)):
         if items[i] == x:
@@ -147,12 +147,12 @@ def _discard(items, x):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _has(fv, f, w):
     return fv[f, 0] == w or fv[f, 1] == w or fv[f, 2] == w
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _neighbours(v, face_of, lone, fv):
     out = [np.int64(x) for x in range(0)]
     for u in lone[v]:
@@ -164,7 +164,7 @@ def _neighbours(v, face_of, lone, fv):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _other_pair(fv, f, v, n):
     """The face's two corners other than v, as one number."""
     lo, hi = -1, -1
@@ -178,7 +178,7 @@ def _other_pair(fv, f, v, n):
     return min(lo, hi) * n + max(lo, hi)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _link_ok(a, b, shared, face_of, lone, fv, n):
     """Lk(a) & Lk(b) = Lk(ab): the common neighbours are exactly the opposite corners of the faces on ab (the
     ``shared`` faces), and no edge of two other corners lies in a face of a and in a face of b."""
@@ -207,7 +207,7 @@ def _link_ok(a, b, shared, face_of, lone, fv, n):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _turns_ok(a, b, x, face_of, fv, m, min_cos):
     """No face of a or b but those on ab turns by more than acos(min_cos) when a and b move to x."""
     rows = [np.int64(f) for f in face_of[a] if not _has(fv, f, b)]
@@ -227,7 +227,7 @@ def _turns_ok(a, b, x, face_of, fv, m, min_cos):
     return _turns_within(p, q, min_cos)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _contract_connectivity(a, b, shared, face_of, lone, fv, face_alive):
     """Edge (a, b) collapsed into a: the faces it shares die, b's faces and lone edges pass to a, and a shared
     face's side that no face holds any more stays as a lone edge."""
@@ -263,7 +263,7 @@ def _contract_connectivity(a, b, shared, face_of, lone, fv, face_alive):
                     _add(lone[w], a)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _alive_lone_edges(alive, lone):
     """The lone edges between live vertices, each once, as an (E, 2) array."""
     n = len(alive)
@@ -284,7 +284,7 @@ def _alive_lone_edges(alive, lone):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _collapse_loop(m, fv, lone_pairs, tips, quadrics, heap_cost, heap_a, heap_b, target, min_cos, limit):
     """The collapse loop of ``simplify_medial_mesh`` (see there): cheapest first, link condition, turn test, and
     with ``limit`` > 0 no collapse whose cost exceeds ``limit`` times the two vertices' summed plane weights (its

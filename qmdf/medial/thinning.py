@@ -43,7 +43,7 @@ class CubicalComplex:
 SOFT = 2  # a cell marked so collapses whatever its q (a fin around a curve-like axis)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _corner_mean(values, i, j, k):
     """Mean node value over a doubled-grid cell's corners."""
     i0, i1 = i // 2, (i + 1) // 2
@@ -60,7 +60,7 @@ def _corner_mean(values, i, j, k):
     return s / n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _key(values, si, sj, sk, ti, tj, tk):
     """Heap key of the pair (sigma, tau), smallest first: the highest q of tau; among ties (both sides of a
     sheet read the same q), the face across q's gradient, so a cube between the two node layers beside a
@@ -83,7 +83,7 @@ def _key(values, si, sj, sk, ti, tj, tk):
     return (-vt, -align, -_corner_mean(values, si, sj, sk))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cofaces(cells, i, j, k, out):
     """Present cofaces of cell (i, j, k) written into out (n, 3); returns how many."""
     n = 0
@@ -99,7 +99,7 @@ def _cofaces(cells, i, j, k, out):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _push_free_faces(cells, values, ci, cj, ck, heap, co, faces):
     """Push (face, its one coface) for each face of cell c that is free."""
     sh = cells.shape
@@ -119,7 +119,7 @@ def _push_free_faces(cells, values, ci, cj, ck, heap, co, faces):
             heapq.heappush(heap, (a, b, c2, s, t))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _collapse(cells, values, keep_q, seeds):
     """Collapse in place; returns how many pairs were removed. Free cells are looked for everywhere, or, with
     ``seeds`` (cells whose rule changed since the last collapse, which left no collapsible pair), only among
@@ -164,7 +164,7 @@ def _collapse(cells, values, keep_q, seeds):
     return removed
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_cells(inside, cells):
     """A doubled-grid cell is present when all its corner nodes are inside."""
     sh = cells.shape
