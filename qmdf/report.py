@@ -181,7 +181,10 @@ def _metrics_table(metrics: dict, stem: str) -> str:
         ref = paper_of.get(name)
         out.append(f"<tr><td>{name}</td><td>{shown}</td><td>{'' if ref is None else f'{ref:.4g}'}</td></tr>")
     out.append("</table>")
-    out.append(f"<p>reference: {html.escape(str(metrics.get('reference', '')))}</p>")
+    reference = str(metrics.get("reference", ""))
+    if metrics.get("reference_gap") is not None:  # a cloud: distances to it include up to half its gap
+        reference += f", points a median {metrics['reference_gap']:.3g} apart (CD and HD include up to half that)"
+    out.append(f"<p>reference: {html.escape(reference)}</p>")
     return "\n".join(out)
 
 

@@ -206,6 +206,7 @@ def test_evaluate_reference_scores_a_sparse_cloud_against_its_source(compose_cfg
     finally:
         STAGES.remove("exact_torus_mat")
     assert own["reference"] == "input points" and own["chamfer"] > 5e-3  # the gaps of 600 points
+    assert own["chamfer"] < own["reference_gap"] / 2 and "reference_gap" not in ref  # the floor the gaps set
     assert ref["reference"].startswith("evaluate.reference (torus.ply)") and ref["chamfer"] < 2e-3
     with pytest.raises(ConfigError, match="evaluate.reference"):
         check(compose([f"evaluate.reference={tmp_path / 'missing.ply'}"]))
