@@ -366,6 +366,7 @@ def single_sheet(
     membrane_faces: np.ndarray,
     eps: float,
     settings: CollapseSettings = CollapseSettings(),
+    keep_q: np.ndarray | None = None,
 ) -> Sheet:
     """The single sheet of the grid nodes ``inside`` the covering (q at them), placed on the membrane.
 
@@ -375,13 +376,14 @@ def single_sheet(
     grid square: a fin around a curve-like axis, a step across a sheet), or where a square of lower q already
     covers their placed spot (the other node layers beside a sheet); lone edges likewise (``_redundant_edges``).
     With ``valley_only``, squares and edges across which q has no valley are released too (``_valley_squares``,
-    ``_valley_edges``). Each release can expose more, so release and collapse repeat until nothing changes."""
+    ``_valley_edges``). Each release can expose more, so release and collapse repeat until nothing changes.
+    ``keep_q``: the per-node levels of ``_keep_levels`` where the caller has them (one solid, several rules)."""
     from qmdf.geometry.inside import mesh_distance
 
     lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
     off_axis, fin_area = settings.off_axis, settings.fin_area
     h = float(spacing.max())
-    col = Collapse(inside, q, _keep_levels(inside, q, eps, settings.valley_share))
+    col = Collapse(inside, q, _keep_levels(inside, q, eps, settings.valley_share) if keep_q is None else keep_q)
     cx = col.run()
     first = {"vertices": len(cx.nodes), "squares": len(cx.squares), "edges": len(cx.edges), "chi": cx.euler}
     dist, x = mesh_distance(membrane_vertices, membrane_faces, lo + cx.nodes * spacing)
@@ -601,6 +603,7 @@ class PreparedSolid:
     spacing: np.ndarray
     eps: float
     stats: dict
+    keep_q: np.ndarray  # per node, the q below which squares and edges stay (``_keep_levels``)
 
 
 def prepared_solid(
@@ -634,7 +637,8 @@ def prepared_solid(
     inside, eps, stats = _solid(inside, q, float(grid["eps"]), field_at, settings, target_chi)
     field_at(np.argwhere(inside))  # the filled voids' nodes too
     stats.update(nodes_inside=int(inside.sum()), grid_stride=stride)
-    return PreparedSolid(inside, np.where(inside, q, np.inf), lo, spacing, eps, stats)
+    q = np.where(inside, q, np.inf)
+    return PreparedSolid(inside, q, lo, spacing, eps, stats, _keep_levels(inside, q, eps, settings.valley_share))
 
 
 def thinned_sheet(
@@ -649,9 +653,18 @@ def thinned_sheet(
     ``refinement.MAT`` and its stats."""
     from qmdf.medial.refinement import MAT
 
-    # copies: the collapse works in place, and one solid serves each off-axis rule
-    inside, q = solid.inside.copy(), solid.q.copy()
-    sheet = single_sheet(inside, q, solid.lo, solid.spacing, membrane_vertices, membrane_faces, solid.eps, settings)
+    # read only (the collapse copies what it changes), so one solid serves each off-axis rule, side by side too
+    sheet = single_sheet(
+        solid.inside,
+        solid.q,
+        solid.lo,
+        solid.spacing,
+        membrane_vertices,
+        membrane_faces,
+        solid.eps,
+        settings,
+        solid.keep_q,
+    )
     radii = radii_of(sheet.vertices)
     return MAT(sheet.vertices, radii, sheet.edges, sheet.faces), {**solid.stats, "collapse": sheet.stats}
 
