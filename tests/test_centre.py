@@ -85,3 +85,33 @@ def test_membrane_mat_is_centred_only_when_asked_and_with_data_radii():
     assert np.array_equal(as_is.vertices, x) and np.array_equal(by_sdf.vertices, x)
     assert np.median(field.axis_distance(centred.vertices)) < 0.1 * np.median(field.axis_distance(x))
     assert np.array_equal(centred.faces, as_is.faces)
+
+
+def test_the_maximal_step_moves_flaps_onto_the_axis_and_leaves_medial_balls_alone():
+    from qmdf.medial.refinement import MAT, SheetData
+    from qmdf.medial.steps import MaximalSettings, maximal
+
+    box = get_shape("box").mesh(16)
+    mesh = (np.asarray(box.vertices), np.asarray(box.faces))
+    field = BoxField()
+    axis = field.axis_points(300, 0)
+    axis = axis[field.sdf(axis) < -0.02]  # balls of some size: a ball at an edge has nowhere to grow
+    # flaps: balls 0.05 from one face only (the box's half sides 0.5, 0.35, 0.25), the kind the fit left at its edges
+    flaps = np.array([[0.3, -0.30, 0.0], [-0.2, 0.30, 0.05], [0.0, 0.1, 0.20]])
+    v = np.concatenate([axis, flaps])
+    mat = MAT(v, -field.sdf(v), np.zeros((0, 2), np.int64), np.zeros((0, 3), np.int64))
+    data = SheetData(
+        mesh,
+        None,
+        lambda q: field.sdf(q) < 0,
+        lambda: None,
+        target_vertices=0,
+        tolerance=1e-3,
+        tip_reach=0.0,
+        compact_slack=1.5,
+    )
+    out, stats = maximal(mat, data, MaximalSettings())
+    assert field.axis_distance(flaps).min() > 0.03 and stats["moved"] == 3
+    assert field.axis_distance(out.vertices[-3:]).max() < 1e-3  # on the axis now, with its radius
+    assert np.allclose(out.radii[-3:], -field.sdf(out.vertices[-3:]), atol=1e-3)
+    np.testing.assert_array_equal(out.vertices[: len(axis)], axis)  # medial balls stay where they are

@@ -1,7 +1,8 @@
 """The sheet's built-in refinement steps (``qmdf.medial.refinement``), in their default order: ``simplify`` to the
 vertex budget under the spherical quadric error, ``centre`` each vertex on the data's axis, ``coverage`` where the
-envelope falls short of the surface, ``rims`` out to where the axis ends, ``fit`` the spheres to the surface.
-Every step but ``simplify`` reads the data (radius=data); feature tips (``SheetData.fixed``) stay in place."""
+envelope falls short of the surface, ``rims`` out to where the axis ends, ``fit`` the spheres to the surface,
+``maximal`` the balls that are not medial (flaps off the axis) back onto it. Every step but ``simplify`` reads the
+data (radius=data); feature tips (``SheetData.fixed``) stay in place."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from qmdf.medial.refinement import MAT, SheetData, SheetStep, sheet_step
 from qmdf.medial.rims import RimSettings, extend_rims
 from qmdf.medial.simplify import SimplifySettings, simplify_medial_mesh
 from qmdf.registry import SHEET_STEPS
+from qmdf.schema import param
 
 
 @dataclass
@@ -164,3 +166,49 @@ def resolve_steps(names: list[str], settings: dict, radius_from_data: bool) -> l
             continue
         out.append((step, schema.build(step.Config, settings.get(name) or {})))
     return out
+
+
+@dataclass
+class MaximalSettings:
+    """The sheet's ``maximal`` step (``sheet.step.maximal``)."""
+
+    reach: float = param(
+        10.0,
+        gt=0,
+        doc="a ball is tested by growing it this many times sheet.tolerance away from its closest data point (10: "
+        "1e-2, issue 53's bound on a vertex's distance to the axis)",
+    )
+
+
+@sheet_step(
+    "maximal",
+    MaximalSettings,
+    summary="{moved} of {vertices} balls not maximal moved onto the axis ({max_move:.2e} at most)",
+)
+def maximal(mat: MAT, data: SheetData, cfg: MaximalSettings):
+    """Every vertex whose ball is not a medial ball moved to the centre of the data's maximal ball through its
+    closest point (``centre_on_data``). The test is the definition: a medial ball cannot grow away from its
+    closest point; one that can by h, the distance to the data rising by (nearly) h, touches the surface on one side
+    only: a flap off the axis (the fit carried rim balls of the box along a face, 33e-3 off its axis). On the axis
+    the other contacts stop it (two faces at 90 degrees: no rise; a wall's two sides: a fall) and where the axis ends
+    the surface's curvature does (a fall), so only flaps move."""
+    v, r = mat.vertices, mat.radii
+    distance, _ = data_distance(data.mesh, data.points)
+    h = cfg.reach * data.tolerance
+    d, foot = distance(v)
+    away = (v - foot) / np.maximum(d, 1e-300)[:, None]
+    d_grown, foot_grown = distance(v + h * away)
+    # grown by (nearly) h and still touching where it did: one contact, not two spokes that draw together where the
+    # axis nears its end (the ellipsoid's rim: there the grown ball's closest point jumps to the other side)
+    grows = (d_grown > d + 0.9 * h) & (np.linalg.norm(foot_grown - foot, axis=1) < 0.5 * h)
+    fixed = data.fixed(v)
+    if fixed is not None:
+        grows &= ~fixed
+    idx = np.flatnonzero(grows & (d > h))
+    stats = {"moved": int(len(idx)), "vertices": int(len(v)), "max_move": 0.0}
+    if not len(idx):
+        return mat, stats
+    moved, radii = v.copy(), r.copy()
+    moved[idx], radii[idx] = centre_on_data(v[idx], data.mesh, data.points, data.is_inside)
+    stats["max_move"] = float(np.linalg.norm(moved[idx] - v[idx], axis=1).max())
+    return MAT(moved, radii, mat.edges, mat.faces), stats
