@@ -204,7 +204,9 @@ def maximal(mat: MAT, data: SheetData, cfg: MaximalSettings):
     fixed = data.fixed(v)
     if fixed is not None:
         grows &= ~fixed
+    # outside the shape every ball grows away from its closest point: that is no flap (nor a ball of the MAT)
     idx = np.flatnonzero(grows & (d > h))
+    idx = idx[np.asarray(data.is_inside(v[idx]), bool)] if len(idx) else idx
     stats = {"moved": int(len(idx)), "vertices": int(len(v)), "max_move": 0.0}
     if not len(idx):
         return mat, stats
