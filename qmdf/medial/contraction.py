@@ -12,7 +12,7 @@ membrane 0.32). Near the feature points, ``zip_weight`` also pulls each vertex t
 layer (``LayerZip``), a local volume term that closes the tips the global one leaves open in a V. Not in the
 paper either: the vertices read q + ``outside_weight`` * max(sdf, 0) (``InsideQ``), so q does not fall
 outside the shape and the vertices of thin parts stay in. Steps: a per-vertex ("vector") Adam with cosine decay.
-q is read from a lazily evaluated fine lattice (``lattice``), so 3k iterations cost seconds, not minutes.
+q is read from a lazily evaluated fine lattice (``lattice``), so thousands of iterations cost seconds, not minutes.
 """
 
 from __future__ import annotations
@@ -34,7 +34,13 @@ from qmdf.schema import param
 class ContractionSettings:
     """``contract``'s settings: the ``contract`` stage's config (``contract.*``), one source for both."""
 
-    iterations: int = param(3000, ge=1, doc="optimisation steps (paper: about 3k)")
+    iterations: int = param(
+        1000,
+        ge=1,
+        doc="optimisation steps, cosine-decayed (paper: about 3k); the covering is a thin shell, so its vertices "
+        "reach the axis and the volume 0 within 1,000, and the sheet centres them on the data after: the teacup, "
+        "bunny, block and noisy teacup's CD / HD within 1.2x of 3,000 at a third to a half of the stage's time",
+    )
     lr: float = param(5e-4, gt=0, doc="step length in the unit box (DCUDF: 5e-4), cosine-decayed")
     lr_final: float = param(1e-6, gt=0)
     lambda_volume: float = param(1.0, ge=0, doc="weight of the enclosed volume (per initial area)")
