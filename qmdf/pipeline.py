@@ -395,6 +395,7 @@ class Pipeline:
             raise
         os.replace(scratch, final_dir)
         ctx.stage_dir = final_dir
+        release_freed_memory()
         return {name: path.name for name, path in ctx.written.items()}
 
     def _store(self, entry: Path, stage_dir: Path, written: dict[str, str]) -> None:
@@ -416,6 +417,20 @@ class Pipeline:
                 yield
             finally:
                 fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def release_freed_memory() -> None:
+    """Hand what a finished stage freed back to the system: glibc keeps freed heap chunks for reuse, and the next
+    stage's arrays, of other sizes, fragment around them, so every stage's peak stacked on the last one's."""
+    import ctypes
+    import ctypes.util
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to trim
+        pass
 
 
 def peak_rss_mb() -> float | None:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -269,3 +271,25 @@ def test_the_debug_fast_overlay_is_the_tests_fast_settings():
 
     overlay, listed = compose(["+debug=fast"]), compose(FAST)
     assert OmegaConf.to_container(overlay) == OmegaConf.to_container(listed)
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="reads the resident size from Linux's /proc")
+def test_memory_a_stage_freed_goes_back_to_the_system():
+    """glibc keeps freed heap chunks resident under a live one; between stages they are handed back, so one
+    stage's peak does not stack on the last one's (the teacup's run: 2.89 -> 2.68 GB)."""
+    from qmdf.pipeline import release_freed_memory
+
+    def resident_mb():
+        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    chunks = [np.ones(8000) for _ in range(2000)]  # 64 KB each: heap chunks, under the mmap threshold
+    live = np.ones(8000)  # above them, so the heap's top cannot shrink by itself
+    filled = resident_mb()
+    del chunks
+    freed = resident_mb()
+    release_freed_memory()
+    trimmed = resident_mb()
+    assert live.sum() == 8000
+    if freed < filled - 20:
+        pytest.skip("this allocator hands freed chunks back by itself")
+    assert trimmed < freed - 100
