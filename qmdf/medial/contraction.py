@@ -39,7 +39,7 @@ class ContractionSettings:
         ge=1,
         doc="optimisation steps, cosine-decayed (paper: about 3k); the covering is a thin shell, so its vertices "
         "reach the axis and the volume 0 within 1,000, and the sheet centres them on the data after: the teacup, "
-        "bunny, block and noisy teacup's CD / HD within 1.2x of 3,000 at a third to a half of the stage's time",
+        "bunny, block and noisy teacup's CD / HD within 1.2x of 3,000 in 50-80% of the stage's time",
     )
     lr: float = param(5e-4, gt=0, doc="step length in the unit box (DCUDF: 5e-4), cosine-decayed")
     lr_final: float = param(1e-6, gt=0)
