@@ -423,12 +423,11 @@ def release_freed_memory() -> None:
     """Hand what a finished stage freed back to the system: glibc keeps freed heap chunks for reuse, and the next
     stage's arrays, of other sizes, fragment around them, so every stage's peak stacked on the last one's."""
     import ctypes
-    import ctypes.util
     import gc
 
     gc.collect()
-    try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    try:  # the process's own symbols: no library search (find_library runs ldconfig in a subprocess each call)
+        ctypes.CDLL(None).malloc_trim(0)
     except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to trim
         pass
 

@@ -251,7 +251,7 @@ def test_help_lists_every_setting_with_its_doc(cli):
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert out.startswith("usage: python -m qmdf") and "+experiment=  cad_features" in out
-    assert "  contract.iterations  (int = 1000)\n      optimisation steps, cosine-decayed (paper: about 3k)" in out
+    assert "  contract.iterations  (int = 3000)\n      optimisation steps, cosine-decayed (paper: about 3k)" in out
     assert "train.supervision.point_surface  (str = 'poisson')" in out and "  input.path  (Optional = None)" in out
     # each sheet step's settings by its key path; the tuned constants folded into one line
     assert "  sheet.step.fit.iterations  (int = 12)" in out and "sheet.expert.valley_share" not in out

@@ -35,11 +35,10 @@ class ContractionSettings:
     """``contract``'s settings: the ``contract`` stage's config (``contract.*``), one source for both."""
 
     iterations: int = param(
-        1000,
+        3000,
         ge=1,
-        doc="optimisation steps, cosine-decayed (paper: about 3k); the covering is a thin shell, so its vertices "
-        "reach the axis and the volume 0 within 1,000, and the sheet centres them on the data after: the teacup, "
-        "bunny, block and noisy teacup's CD / HD within 1.2x of 3,000 in 50-80% of the stage's time",
+        doc="optimisation steps, cosine-decayed (paper: about 3k); 1,000 kept CD / HD but left the bunny's body a "
+        "tangle of lone edges (676 against 342, docs/results.md)",
     )
     lr: float = param(5e-4, gt=0, doc="step length in the unit box (DCUDF: 5e-4), cosine-decayed")
     lr_final: float = param(1e-6, gt=0)
