@@ -39,6 +39,22 @@ def test_bench_models_on_one_procedural_model(cli):
     assert "torus" in proc.stdout and "CD / HD: exact point-to-surface distances" in proc.stdout
 
 
+def test_bench_models_sets_a_dataset_mean_beside_the_papers():
+    """SRB's mean over the scans that were scored (a failed run is left out), beside the paper's Table 1 mean."""
+    from qmdf.bench.models import dataset_means
+
+    rows = [
+        {"category": "pointclouds/srb", "cd": 2e-3, "hd": 10e-3},
+        {"category": "pointclouds/srb", "cd": 4e-3, "hd": 30e-3},
+        {"category": "pointclouds/srb", "status": "failed"},
+        {"category": "organic", "cd": 9.0, "hd": 9.0},
+    ]
+    (line,) = dataset_means(rows)
+    assert line.startswith("pointclouds/srb mean over 2: CD 3.00e-3 HD 20.00e-3")
+    assert "2.10e-3 / 15.86e-3" in line
+    assert dataset_means(rows[3:]) == []
+
+
 @pytest.mark.slow
 def test_bench_extraction_on_the_torus(cli):
     proc = cli(

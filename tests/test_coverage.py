@@ -125,6 +125,10 @@ def test_a_covered_mat_gets_nothing_and_the_budget_holds():
     # below the tolerance, what is left of the budget goes to the smaller gaps (down to an eighth of it)
     _, _, _, _, stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 100, tolerance=0.01)
     assert stats["added"] > 0 and stats["shortfall_after"]["max"] < stats["shortfall_before"]["max"]
+    # compact by tolerance: every sample is within it already, so nothing goes in
+    assert stats["shortfall_before"]["max"] < 0.01
+    stats = refine_coverage(v, r, np.zeros((0, 2), int), faces, balls, 100, tolerance=0.01, below_tolerance=False)[4]
+    assert stats["added"] == 0
     _, short_v, short_r, short_faces = _short_disc()
     stats = refine_coverage(short_v, short_r, np.zeros((0, 2), int), short_faces, balls, 7, tolerance=1e-3)[4]
     assert stats["added"] == 7

@@ -126,7 +126,7 @@ def build_supervision(
             normals, residual, info = estimate_oriented_normals(points, method=s.orientation)
         else:
             _, residual = pca_normals(points)
-            normals, info = orient_by_winding(points, _unit(normals))
+            normals, info = orient_by_winding(points, _unit(normals), given=True)
         stats["orientation"] = info
         noise = float(np.median(residual))
         stats["noise_level"] = noise

@@ -282,14 +282,15 @@ def refine_coverage(
     spacing: float = _DEFAULT.spacing,
     overshoot: float = _DEFAULT.overshoot,
     max_rounds: int = _DEFAULT.rounds,
+    below_tolerance: bool = True,
 ):
     """Up to ``max_added`` of the ``balls``' centres inserted into the medial mesh (``vertices``, ``radii``, lone
     ``edges``, ``faces``) where the envelope falls short of their samples by more than ``tolerance``, the worst
-    first, then, while the budget lasts, by less (the level halves when none is left above it, down to an eighth
-    of ``tolerance``), none within max(``spacing``, r / 2) of another in a round (see the module doc). An
-    insertion whose balls along a new edge (interpolated at 1/4, 1/2, 3/4) reach out of the data by more than
-    ``overshoot`` is refused: a spike from a face to a centre far off it (a branch the sheet lacks) bulges out
-    of the shape. Returns (vertices, radii, lone edges, faces, stats)."""
+    first, then, while the budget lasts and ``below_tolerance`` allows, by less (the level halves when none is left
+    above it, down to an eighth of ``tolerance``), none within max(``spacing``, r / 2) of another in a round (see
+    the module doc). An insertion whose balls along a new edge (interpolated at 1/4, 1/2, 3/4) reach out of the
+    data by more than ``overshoot`` is refused: a spike from a face to a centre far off it (a branch the sheet
+    lacks) bulges out of the shape. Returns (vertices, radii, lone edges, faces, stats)."""
     from qmdf.geometry.envelope import EnvelopeUnion
 
     v, r = np.asarray(vertices, np.float64), np.asarray(radii, np.float64)
@@ -316,7 +317,7 @@ def refine_coverage(
     while stats["rounds"] < max_rounds and stats["added"] < max_added:
         picks = _picks(samples, np.where(spent, -np.inf, d), balls.radii, level, spacing, max_added - stats["added"])
         if not len(picks):
-            if level < tolerance / 7.9:
+            if not below_tolerance or level < tolerance / 7.9:
                 break
             level *= 0.5
             continue

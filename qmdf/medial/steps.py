@@ -88,8 +88,11 @@ def coverage(mat: MAT, data: SheetData, cfg: CoverageSettings):
     if not data.is_compact(len(mat.vertices)):
         return mat, {"added": 0, "skipped": "the sheet is not compact (simplification stopped early)"}
     n0 = len(mat.vertices)
+    # compact by tolerance (simplify's deviation): the envelope is asked to reach the data within the tolerance,
+    # so no ball goes in for a gap below it; a fixed budget is spent on the smaller gaps too
+    by_tolerance = bool(getattr(data.settings.get("simplify"), "deviation", 0.0))
     *out, stats = refine_coverage(
-        *mat, data.balls, cfg.vertices, data.tolerance, cfg.spacing, cfg.overshoot, cfg.rounds
+        *mat, data.balls, cfg.vertices, data.tolerance, cfg.spacing, cfg.overshoot, cfg.rounds, not by_tolerance
     )
     if not stats["added"]:
         return mat, stats

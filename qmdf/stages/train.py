@@ -46,7 +46,7 @@ class Train(Stage):
     optional_inputs = {"surface": MESH, "input_info": JSON}
     outputs = {"field": FIELD, "training": JSON}
     optional_outputs = {"medial_rays": RAYS, "point_surface": MESH}
-    version = "19"  # docs/history.md lists what each version changed; 19: no upsampled surface with sub-gap topology
+    version = "20"  # docs/history.md lists what each version changed; 20: given normals turned only where contradicted
 
     @classmethod
     def cache_config(cls, section: dict) -> dict:
